@@ -1,0 +1,37 @@
+"""ament_python package: the ROS 2 node `node` and the offline CLI `triplet-normal`."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "triplet_normal_ros"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["checkpoints/*.safetensors", "sample_data/*.npz", "sample_data/*.md"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+    ],
+    install_requires=["setuptools", "numpy", "scipy", "torch", "safetensors"],
+    extras_require={
+        "test": ["pytest", "hypothesis"],
+        "train": ["trimesh", "manifold3d", "rtree", "tqdm", "matplotlib"],
+        "io": ["pypcd4"],
+    },
+    zip_safe=False,
+    maintainer="triplet_normal_ros maintainers",
+    maintainer_email="maintainers@triplet-normal-ros.invalid",
+    description="Learned (triplet) and PCA surface normals for sensor_msgs/PointCloud2.",
+    license="BSD-3-Clause",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            f"node = {PACKAGE}.node:main",
+            f"triplet-normal = {PACKAGE}.cli:main",
+        ],
+    },
+)

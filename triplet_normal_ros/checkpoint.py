@@ -1,0 +1,76 @@
+"""Checkpoints as safetensors weights plus JSON metadata in the same file's header: nothing is ever unpickled."""
+
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError, safe_open
+from safetensors.torch import save_file
+
+from . import __version__
+from .model import TripletNormalNet
+
+FORMAT = "triplet_normal_ros.checkpoint/1"
+_META_KEY = "triplet_normal"
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint that is missing, not safetensors, or not one of ours; the message says which and where."""
+
+
+def default_checkpoint_path() -> Path:
+    """The checkpoint shipped inside the package: found the same way from a checkout, a venv or a colcon install."""
+    return Path(__file__).resolve().parent / "checkpoints" / "default.safetensors"
+
+
+def save_checkpoint(path: str | Path, model: TripletNormalNet, metadata: dict[str, Any]) -> Path:
+    """Write weights and metadata (k, radius convention, training recipe, seed, ...) atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    meta = {"format": FORMAT, "version": __version__, "architecture": model.config, **metadata}
+    tensors = {name: t.detach().to("cpu").contiguous() for name, t in model.state_dict().items()}
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    save_file(tensors, str(tmp), metadata={_META_KEY: json.dumps(meta, sort_keys=True)})
+    tmp.replace(path)
+    return path
+
+
+def read_metadata(path: str | Path) -> dict[str, Any]:
+    """The JSON metadata alone, without building the model."""
+    path = _existing(path)
+    try:
+        with safe_open(str(path), framework="pt") as handle:
+            header = handle.metadata() or {}
+    except (SafetensorError, OSError, ValueError) as error:
+        raise CheckpointError(f"{path} is not a safetensors checkpoint ({error})") from None
+    if _META_KEY not in header:
+        raise CheckpointError(f"{path} is a safetensors file without triplet_normal metadata")
+    try:
+        meta = json.loads(header[_META_KEY])
+    except json.JSONDecodeError as error:
+        raise CheckpointError(f"{path} has corrupt metadata ({error})") from None
+    if meta.get("format") != FORMAT:
+        raise CheckpointError(f"{path} has format {meta.get('format')!r}, expected {FORMAT!r}")
+    return meta
+
+
+def load_checkpoint(path: str | Path | None, device: torch.device | str = "cpu") -> tuple[TripletNormalNet, dict]:
+    """Rebuild the model in eval mode on `device`; any defect becomes one CheckpointError."""
+    path = _existing(path if path else default_checkpoint_path())
+    meta = read_metadata(path)
+    try:
+        model = TripletNormalNet.from_config(meta["architecture"])
+        with safe_open(str(path), framework="pt") as handle:
+            state = {name: handle.get_tensor(name) for name in handle.keys()}  # noqa: SIM118
+        model.load_state_dict(state, strict=True)
+    except (KeyError, TypeError, ValueError, RuntimeError, SafetensorError) as error:
+        raise CheckpointError(f"{path} does not match the model it describes ({error})") from None
+    return model.to(device).eval(), meta
+
+
+def _existing(path: str | Path) -> Path:
+    path = Path(path).expanduser()
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint not found: {path}")
+    return path

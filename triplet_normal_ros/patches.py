@@ -1,0 +1,74 @@
+"""The paper's patch pre-processing, batched in torch so inference and training share it on CPU and GPU.
+
+A patch is the ball of radius r around a centre point, translated to the centre, scaled by 1/r, rotated into its PCA
+frame (last principal axis -> +z, second -> +x, det R = +1), and randomly subsampled (or padded by repetition) to k.
+"""
+
+from dataclasses import dataclass
+
+import torch
+
+from .pca import masked_covariance, principal_frames, surface_variation
+
+MIN_NEIGHBOURS = 3
+
+
+@dataclass
+class Patches:
+    """A batch of B patches of k points; rows with `valid == False` carry zeros and must not be used."""
+
+    points: torch.Tensor  # (B, k, 3) float32, in the patch frame, unit radius
+    rotation: torch.Tensor  # (B, 3, 3) world -> patch frame (rows are the frame axes)
+    selected: torch.Tensor  # (B, k) int64 indices into the cloud of the points fed to the network
+    valid: torch.Tensor  # (B,) bool: at least MIN_NEIGHBOURS neighbours
+    pca_normal: torch.Tensor  # (B, 3) world frame, the smallest principal axis of the whole pool
+    curvature: torch.Tensor  # (B,) surface variation of the whole pool
+
+
+def build_patches(
+    cloud: torch.Tensor,
+    centres: torch.Tensor,
+    pool: torch.Tensor,
+    radius: float,
+    k: int,
+    generator: torch.Generator | None = None,
+    rotation: torch.Tensor | None = None,
+) -> Patches:
+    """Build patches from neighbour pools (B, P) of cloud indices, -1 padded (see `NeighbourIndex.ball`).
+
+    The PCA frame and curvature use the whole pool; the network sees k of its points. `rotation` overrides the frame,
+    which triplet training needs to express positive and negative patches in the anchor's frame.
+    """
+    mask = pool >= 0
+    valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
+    safe = pool.clamp_min(0)
+    local = (cloud[safe].to(torch.float64) - centres.to(torch.float64).unsqueeze(1)) / radius
+    eigvals, frame = principal_frames(masked_covariance(local, mask), valid)
+    rot = frame if rotation is None else rotation.to(torch.float64)
+    columns = sample_columns(mask, k, generator)
+    chosen = torch.gather(local, 1, columns.unsqueeze(-1).expand(-1, -1, 3))
+    aligned = (chosen @ rot.transpose(1, 2)) * valid.view(-1, 1, 1)
+    return Patches(
+        points=aligned.to(torch.float32),
+        rotation=rot,
+        selected=torch.gather(safe, 1, columns),
+        valid=valid,
+        pca_normal=frame[:, 2],
+        curvature=surface_variation(eigvals),
+    )
+
+
+def sample_columns(mask: torch.Tensor, k: int, generator: torch.Generator | None) -> torch.Tensor:
+    """Column positions (B, k) into each pool: k distinct valid entries at random, or, when a row has fewer than k,
+    each valid entry once in random order and then repeats (the paper's padding). Rows with none get column 0."""
+    keys = torch.rand(mask.shape, generator=generator, device=mask.device)
+    keys = torch.where(mask, keys, 2.0)  # invalid entries sort last
+    order = torch.argsort(keys, dim=1)
+    count = mask.sum(dim=1, keepdim=True).clamp_min(1)
+    position = torch.arange(k, device=mask.device).unsqueeze(0) % count
+    return torch.gather(order, 1, position)
+
+
+def to_world(local_normals: torch.Tensor, rotation: torch.Tensor) -> torch.Tensor:
+    """Map patch-frame vectors back with R^-1 = R^T."""
+    return torch.einsum("bi,bij->bj", local_normals.to(rotation.dtype), rotation)

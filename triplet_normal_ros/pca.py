@@ -1,0 +1,32 @@
+"""Batched, masked PCA of neighbourhoods: normals, surface variation, and the proper rotation into the PCA frame."""
+
+import torch
+
+
+def masked_covariance(points: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean-centred covariance of the masked points of each row: (B, P, 3), (B, P) -> (B, 3, 3)."""
+    weight = mask.to(points.dtype).unsqueeze(-1)
+    count = weight.sum(dim=1).clamp_min(1.0)
+    mean = (points * weight).sum(dim=1) / count
+    centred = (points - mean.unsqueeze(1)) * weight
+    return centred.transpose(1, 2) @ centred / count.unsqueeze(-1)
+
+
+def principal_frames(cov: torch.Tensor, valid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Ascending eigenvalues (B, 3) and rotations R (B, 3, 3) whose rows are (x, y, z) in world coordinates.
+
+    z is the last principal axis (smallest variance, the PCA normal), x the second, y = z × x, so det R = +1 and
+    `R @ v` expresses a world vector in the patch frame. Invalid rows get the identity so eigh never sees NaN.
+    """
+    eye = torch.eye(3, dtype=cov.dtype, device=cov.device).expand_as(cov)
+    cov = torch.where(valid.view(-1, 1, 1), cov, eye)
+    eigvals, eigvecs = torch.linalg.eigh(cov)
+    z_axis, x_axis = eigvecs[..., 0], eigvecs[..., 1]
+    y_axis = torch.linalg.cross(z_axis, x_axis, dim=-1)
+    return eigvals.clamp_min(0.0), torch.stack((x_axis, y_axis, z_axis), dim=1)
+
+
+def surface_variation(eigvals: torch.Tensor) -> torch.Tensor:
+    """PCL's curvature λ0 / (λ0 + λ1 + λ2); 0 for a degenerate (all coincident) neighbourhood."""
+    total = eigvals.sum(dim=-1)
+    return torch.where(total > 0, eigvals[..., 0] / total.clamp_min(torch.finfo(eigvals.dtype).tiny), 0.0)

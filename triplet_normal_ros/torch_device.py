@@ -1,0 +1,30 @@
+"""Map the user's device string onto a torch.device, with a reason when it cannot be honoured."""
+
+import re
+
+import torch
+
+_DEVICE_RE = re.compile(r"^(auto|cpu|cuda(:\d+)?)$")
+
+
+def validate_device_name(name: str) -> str | None:
+    """Return why `name` is unusable here, or None; the node's parameter callback needs the reason, not an exception."""
+    if not isinstance(name, str) or not _DEVICE_RE.match(name):
+        return f"device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got {name!r}"
+    if name.startswith("cuda"):
+        if not torch.cuda.is_available():
+            return f"device {name!r} requested but torch sees no CUDA GPU"
+        index = int(name.split(":")[1]) if ":" in name else 0
+        if index >= torch.cuda.device_count():
+            return f"device {name!r} requested but only {torch.cuda.device_count()} CUDA device(s) exist"
+    return None
+
+
+def resolve_device(name: str = "auto") -> torch.device:
+    """'auto' takes the GPU when torch sees one, else the CPU; anything unusable raises ValueError."""
+    reason = validate_device_name(name)
+    if reason:
+        raise ValueError(reason)
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
