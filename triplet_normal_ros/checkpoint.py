@@ -50,8 +50,13 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
         meta = json.loads(header[_META_KEY])
     except json.JSONDecodeError as error:
         raise CheckpointError(f"{path} has corrupt metadata ({error})") from None
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"{path} has metadata that is not a JSON object")
     if meta.get("format") != FORMAT:
         raise CheckpointError(f"{path} has format {meta.get('format')!r}, expected {FORMAT!r}")
+    k = meta.get("k")
+    if isinstance(k, bool) or not isinstance(k, int) or k < 3:
+        raise CheckpointError(f"{path} has an invalid patch size k = {k!r} (an integer >= 3 is required)")
     return meta
 
 
@@ -64,7 +69,7 @@ def load_checkpoint(path: str | Path | None, device: torch.device | str = "cpu")
         with safe_open(str(path), framework="pt") as handle:
             state = {name: handle.get_tensor(name) for name in handle.keys()}  # noqa: SIM118
         model.load_state_dict(state, strict=True)
-    except (KeyError, TypeError, ValueError, RuntimeError, SafetensorError) as error:
+    except (KeyError, TypeError, ValueError, IndexError, RuntimeError, SafetensorError) as error:
         raise CheckpointError(f"{path} does not match the model it describes ({error})") from None
     return model.to(device).eval(), meta
 

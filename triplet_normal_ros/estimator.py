@@ -70,7 +70,8 @@ class NormalEstimator:
 
     @radius.setter
     def radius(self, value: float) -> None:
-        if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+        real = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+        if not (real and np.isfinite(value) and value > 0):
             raise EstimatorError(f"radius must be a finite number > 0, got {value!r}")
         self._radius = float(value)
 
@@ -114,7 +115,6 @@ class NormalEstimator:
         with _timed(timings, "neighbours"):
             index = NeighbourIndex(points)
         cloud = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64)).to(self.device)
-        generator = torch.Generator(device=self.device).manual_seed(self.seed)
         for lo in range(0, len(query), CHUNK):
             if cancel is not None and cancel.is_set():
                 raise EstimationCancelled("estimation cancelled")
@@ -124,14 +124,14 @@ class NormalEstimator:
             centres = cloud[torch.from_numpy(rows).to(self.device)]
             pool_t = torch.from_numpy(pool).to(self.device)
             run = self._pca_chunk if self.method == "pca" else self._learned_chunk
-            n, c = run(cloud, centres, pool_t, generator, cancel, timings)
+            n, c = run(cloud, centres, pool_t, torch.from_numpy(rows).to(self.device), cancel, timings)
             normals[lo : lo + len(rows)], curvature[lo : lo + len(rows)] = n, c
         return normals, curvature
 
     def _pool_size(self) -> int:
         return self.k if self.method == "pca" else POOL_FACTOR * self.k
 
-    def _pca_chunk(self, cloud, centres, pool, generator, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
+    def _pca_chunk(self, cloud, centres, pool, rows, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
         with _timed(timings, "pca"):
             mask = pool >= 0
             valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
@@ -140,9 +140,9 @@ class NormalEstimator:
             return _finish(frame[:, 2], surface_variation(eigvals), valid)
 
     @torch.inference_mode()
-    def _learned_chunk(self, cloud, centres, pool, generator, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
+    def _learned_chunk(self, cloud, centres, pool, rows, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
         with _timed(timings, "patches"):
-            patches = build_patches(cloud, centres, pool, self.radius, self.k, generator)
+            patches = build_patches(cloud, centres, pool, self.radius, self.k, centre_ids=rows, seed=self.seed)
         local = torch.empty((len(centres), 3), dtype=torch.float32, device=self.device)
         with _timed(timings, "network"):
             for lo in range(0, len(centres), self.batch_size):
@@ -161,12 +161,15 @@ def _finish(normals: torch.Tensor, curvature: torch.Tensor, valid: torch.Tensor)
 
 
 def _as_cloud(points: np.ndarray) -> np.ndarray:
-    points = np.asarray(points)
+    try:
+        points = np.asarray(points)
+    except ValueError as error:  # ragged nested sequences
+        raise EstimatorError(f"points must be an (N, 3) array of numbers ({error})") from None
     if points.ndim != 2 or points.shape[1] != 3:
         raise EstimatorError(f"points must have shape (N, 3), got {points.shape}")
-    if not np.issubdtype(points.dtype, np.floating):
-        points = points.astype(np.float64)
-    return points
+    if not (np.issubdtype(points.dtype, np.floating) or np.issubdtype(points.dtype, np.integer)):
+        raise EstimatorError(f"points must be real numbers, got dtype {points.dtype}")
+    return points if np.issubdtype(points.dtype, np.floating) else points.astype(np.float64)
 
 
 def _as_query(query: np.ndarray | None, n: int) -> np.ndarray:

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .pca import masked_covariance, principal_frames, surface_variation
+from .pca import canonical_signs, masked_covariance, principal_frames, surface_variation
 
 MIN_NEIGHBOURS = 3
 
@@ -33,21 +33,27 @@ def build_patches(
     k: int,
     generator: torch.Generator | None = None,
     rotation: torch.Tensor | None = None,
+    centre_ids: torch.Tensor | None = None,
+    seed: int = 0,
 ) -> Patches:
     """Build patches from neighbour pools (B, P) of cloud indices, -1 padded (see `NeighbourIndex.ball`).
 
     The PCA frame and curvature use the whole pool; the network sees k of its points. `rotation` overrides the frame,
-    which triplet training needs to express positive and negative patches in the anchor's frame.
+    which triplet training needs to express positive and negative patches in the anchor's frame. The k points are
+    drawn with `generator` (training) or, given `centre_ids`, by a hash of (centre, neighbour, seed), so a point's
+    patch never depends on which other points share its batch (inference).
     """
     mask = pool >= 0
     valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
     safe = pool.clamp_min(0)
     local = (cloud[safe].to(torch.float64) - centres.to(torch.float64).unsqueeze(1)) / radius
     eigvals, frame = principal_frames(masked_covariance(local, mask), valid)
+    frame = canonical_signs(frame, local, mask)
     rot = frame if rotation is None else rotation.to(torch.float64)
-    columns = sample_columns(mask, k, generator)
+    keys = None if centre_ids is None else hashed_keys(centre_ids, pool, seed)
+    columns = sample_columns(mask, k, generator, keys)
     chosen = torch.gather(local, 1, columns.unsqueeze(-1).expand(-1, -1, 3))
-    aligned = (chosen @ rot.transpose(1, 2)) * valid.view(-1, 1, 1)
+    aligned = torch.where(valid.view(-1, 1, 1), chosen @ rot.transpose(1, 2), 0.0)
     return Patches(
         points=aligned.to(torch.float32),
         rotation=rot,
@@ -58,15 +64,30 @@ def build_patches(
     )
 
 
-def sample_columns(mask: torch.Tensor, k: int, generator: torch.Generator | None) -> torch.Tensor:
+def sample_columns(
+    mask: torch.Tensor, k: int, generator: torch.Generator | None = None, keys: torch.Tensor | None = None
+) -> torch.Tensor:
     """Column positions (B, k) into each pool: k distinct valid entries at random, or, when a row has fewer than k,
-    each valid entry once in random order and then repeats (the paper's padding). Rows with none get column 0."""
-    keys = torch.rand(mask.shape, generator=generator, device=mask.device)
+    each valid entry once in random order and then repeats (the paper's padding). Rows with none get column 0.
+    `keys` (B, P) in [0, 1) replace the generator's draws when given."""
+    if keys is None:
+        keys = torch.rand(mask.shape, generator=generator, device=mask.device)
     keys = torch.where(mask, keys, 2.0)  # invalid entries sort last
     order = torch.argsort(keys, dim=1)
     count = mask.sum(dim=1, keepdim=True).clamp_min(1)
     position = torch.arange(k, device=mask.device).unsqueeze(0) % count
     return torch.gather(order, 1, position)
+
+
+def hashed_keys(centre_ids: torch.Tensor, pool: torch.Tensor, seed: int = 0) -> torch.Tensor:
+    """Uniform-looking keys in [0, 1) from (centre index, neighbour index, seed): a 32-bit integer hash (Mueller's),
+    kept in int64 with constants below 2^31 so no product overflows."""
+    mask32 = 0xFFFFFFFF
+    h = (centre_ids.view(-1, 1).to(torch.int64) * 0x27D4EB2F + pool.to(torch.int64) * 0x165667B1 + seed) & mask32
+    for _ in range(2):
+        h = (((h >> 16) ^ h) * 0x45D9F3B) & mask32
+    h = (h >> 16) ^ h
+    return h.to(torch.float64) / float(1 << 32)
 
 
 def to_world(local_normals: torch.Tensor, rotation: torch.Tensor) -> torch.Tensor:

@@ -30,3 +30,22 @@ def surface_variation(eigvals: torch.Tensor) -> torch.Tensor:
     """PCL's curvature λ0 / (λ0 + λ1 + λ2); 0 for a degenerate (all coincident) neighbourhood."""
     total = eigvals.sum(dim=-1)
     return torch.where(total > 0, eigvals[..., 0] / total.clamp_min(torch.finfo(eigvals.dtype).tiny), 0.0)
+
+
+def canonical_signs(frame: torch.Tensor, points: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Fix the sign ambiguity of the principal axes: x and z point along the positive skew (third moment) of the
+    masked, mean-centred points, and y = z × x keeps det = +1.
+
+    eigh returns each axis with an arbitrary sign, so without this the same surface can reach the network in four
+    mirrored poses; a canonical pose makes the learned estimate rotation-equivariant and the learning problem smaller.
+    A symmetric patch (zero skew) keeps +, which is harmless precisely because it looks the same either way.
+    """
+    weight = mask.to(points.dtype).unsqueeze(-1)
+    mean = (points * weight).sum(dim=1) / weight.sum(dim=1).clamp_min(1.0)
+    centred = (points - mean.unsqueeze(1)) * weight
+    x_axis, z_axis = frame[:, 0], frame[:, 2]
+    sign_x = torch.where(torch.einsum("bpj,bj->bp", centred, x_axis).pow(3).sum(dim=1) < 0, -1.0, 1.0)
+    sign_z = torch.where(torch.einsum("bpj,bj->bp", centred, z_axis).pow(3).sum(dim=1) < 0, -1.0, 1.0)
+    x_axis = x_axis * sign_x.to(frame.dtype).unsqueeze(-1)
+    z_axis = z_axis * sign_z.to(frame.dtype).unsqueeze(-1)
+    return torch.stack((x_axis, torch.linalg.cross(z_axis, x_axis, dim=-1), z_axis), dim=1)

@@ -1,0 +1,94 @@
+"""The paper's losses on cases computed by hand: Eq. (4) triplet loss and the weighted cos^n normal loss (Eq. 5-6)."""
+
+import math
+
+import pytest
+import torch
+
+from triplet_normal_ros.losses import normal_loss, triplet_loss
+
+Z = [0.0, 0.0, 1.0]
+
+
+def _unit(theta_deg: float, phi_deg: float = 0.0) -> list[float]:
+    t, p = math.radians(theta_deg), math.radians(phi_deg)
+    return [math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)]
+
+
+def test_triplet_loss_with_zero_margin_on_known_distances() -> None:
+    anchor = torch.tensor([[0.0, 0.0], [0.0, 0.0], [1.0, 1.0]])
+    positive = torch.tensor([[3.0, 4.0], [1.0, 0.0], [1.0, 3.0]])  # distances 5, 1, 2
+    negative = torch.tensor([[1.0, 0.0], [0.0, 5.0], [1.0, 3.0]])  # distances 1, 5, 2
+    # max(5 - 1, 0) = 4, max(1 - 5, 0) = 0, max(2 - 2, 0) = 0 -> mean 4/3.
+    assert triplet_loss(anchor, positive, negative).item() == pytest.approx(4.0 / 3.0)
+    # A margin only lifts the hinge: (4 + 1) + max(-4 + 1, 0) + (0 + 1) -> 6/3.
+    assert triplet_loss(anchor, positive, negative, margin=1.0).item() == pytest.approx(2.0)
+
+
+def test_triplet_loss_is_zero_when_every_negative_is_farther() -> None:
+    anchor = torch.zeros(4, 8)
+    assert triplet_loss(anchor, anchor + 0.1, anchor + 0.2).item() == 0.0
+
+
+def _patch(normals: list[list[float]]) -> torch.Tensor:
+    return torch.tensor([normals], dtype=torch.float64)
+
+
+def _vec(v: list[float]) -> torch.Tensor:
+    return torch.tensor([v], dtype=torch.float64)
+
+
+def test_normal_loss_is_zero_for_perfect_and_for_sign_flipped_predictions_and_one_when_orthogonal() -> None:
+    flat = _patch([Z] * 5)
+    assert normal_loss(_vec(Z), _vec(Z), flat).item() == pytest.approx(0.0, abs=1e-12)
+    assert normal_loss(_vec([0.0, 0.0, -1.0]), _vec(Z), flat).item() == pytest.approx(0.0, abs=1e-12)
+    assert normal_loss(_vec([1.0, 0.0, 0.0]), _vec(Z), flat).item() == pytest.approx(1.0)
+    # An odd exponent would not be sign invariant: 1 - (-1)^3 = 2.
+    assert normal_loss(_vec([0.0, 0.0, -1.0]), _vec(Z), flat, exponent=3).item() == pytest.approx(2.0)
+
+
+def _two_normal_expected(pred_deg: float, exponent: int) -> float:
+    """Three ground-truth normals equal to the centre's (z) and one at 30° from it, prediction at pred_deg from z."""
+    sigma = math.radians(15.0)
+    w_far = math.exp(-(1.0 - math.cos(math.radians(30.0))) / (1.0 - math.cos(sigma)))
+    cos_near = math.cos(math.radians(pred_deg))
+    cos_far = math.cos(math.radians(30.0 - pred_deg))
+    num = 3 * 1.0 * (1.0 - cos_near**exponent) + w_far * (1.0 - cos_far**exponent)
+    return num / (3 + w_far)
+
+
+@pytest.mark.parametrize("pred_deg", [0.0, 10.0, 30.0, 60.0])
+def test_weighted_loss_of_a_two_normal_patch_matches_the_hand_computation(pred_deg: float) -> None:
+    patch = _patch([Z, Z, Z, _unit(30.0)])
+    pred = _vec(_unit(pred_deg))
+    got8 = normal_loss(pred, _vec(Z), patch).item()  # the paper's defaults: exponent 8, σ_s = 15°
+    assert got8 == pytest.approx(_two_normal_expected(pred_deg, 8), rel=1e-9, abs=1e-12)
+    got2 = normal_loss(pred, _vec(Z), patch, exponent=2).item()
+    assert got2 == pytest.approx(_two_normal_expected(pred_deg, 2), rel=1e-9, abs=1e-12)
+    assert got2 != pytest.approx(got8, rel=1e-3)
+
+
+def test_weight_of_a_normal_at_sigma_s_is_one_over_e() -> None:
+    # One normal equal to the centre's (weight 1), one at σ_s = 15° (weight e^-1); predicting x gives loss 1 for
+    # both, predicting the centre normal leaves only the second term.
+    patch = _patch([Z, _unit(15.0)])
+    expected = math.exp(-1.0) * (1.0 - math.cos(math.radians(15.0)) ** 8) / (1.0 + math.exp(-1.0))
+    assert normal_loss(_vec(Z), _vec(Z), patch).item() == pytest.approx(expected, rel=1e-9)
+
+
+def test_valid_mask_drops_entries_and_the_batch_is_averaged() -> None:
+    patches = torch.tensor([[Z, [1.0, 0.0, 0.0]], [Z, Z]], dtype=torch.float64)
+    centres = torch.tensor([Z, Z], dtype=torch.float64)
+    preds = torch.tensor([Z, [1.0, 0.0, 0.0]], dtype=torch.float64)
+    valid = torch.tensor([[True, False], [True, True]])
+    # Row 0: only the matching normal counts -> 0. Row 1: orthogonal prediction -> 1. Mean 0.5.
+    assert normal_loss(preds, centres, patches, valid=valid).item() == pytest.approx(0.5)
+    # Unmasked, row 0 adds the orthogonal normal with weight exp(-1 / (1 - cos 15°)).
+    w = math.exp(-1.0 / (1.0 - math.cos(math.radians(15.0))))
+    assert normal_loss(preds, centres, patches).item() == pytest.approx((w / (1 + w) + 1.0) / 2)
+
+
+def test_normal_loss_has_gradients_for_training() -> None:
+    pred = torch.tensor([_unit(20.0, 40.0)], dtype=torch.float64, requires_grad=True)
+    normal_loss(pred, _vec(Z), _patch([Z, _unit(30.0)])).backward()
+    assert pred.grad is not None and bool(torch.isfinite(pred.grad).all()) and pred.grad.abs().sum() > 0
