@@ -28,5 +28,19 @@ $(STAMP): Makefile setup.py package.xml
 	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
+# `make demo`: colcon-build into out/ws, run the installed node, replay the shipped Kinect frames, draw out/*.png.
+WS := out/ws
+demo: venv
+	$(VENV)/bin/colcon --log-base $(WS)/log build --base-paths . \
+		--build-base $(WS)/build --install-base $(WS)/install
+	$(PY) -m triplet_normal_ros.demo --prefix $(WS)/install/triplet_normal_ros --out out
+
+lint: venv
+	$(VENV)/bin/ruff check --config .ci/ruff.toml triplet_normal_ros test
+
+# `make test`: lint, then every test (includes a colcon build and the node as a separate process).
+test: venv lint
+	$(PY) -m pytest test -q
+
 clean:
 	rm -rf $(VENV) build install log out .pytest_cache

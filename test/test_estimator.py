@@ -394,3 +394,13 @@ def test_rotating_the_cloud_rotates_the_learned_normals_everywhere(checkpoint: P
     after, _ = est.estimate(points @ q.T)
     rows = _well_conditioned(points, 0.3, POOL_FACTOR * 16)
     assert _angles_deg(after[rows], before[rows] @ q.T).max() < 1.0
+
+
+def test_nan_first_point_does_not_poison_padded_pools() -> None:
+    # Organized frames start with NaN rows; -1 padding clamps to index 0, which must never leak into a covariance.
+    rng = np.random.default_rng(4)
+    points = rng.uniform(size=(2000, 3))
+    points[0] = np.nan
+    normals, curvature = NormalEstimator("pca", radius=0.3, k=64).estimate(points)
+    assert np.isnan(normals[0]).all()
+    assert np.isfinite(normals[1:]).all() and np.isfinite(curvature[1:]).all()

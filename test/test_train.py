@@ -19,7 +19,7 @@ from triplet_normal_ros.triplets import mine_triplets
 TOY = (
     "--shapes box_3x2x1 sphere --val-shapes v_notch_block --n-points 3000 --k 32 --patches-per-shape 96 "
     "--regressor-patches-per-shape 256 --val-patches-per-cloud 16 --encoder-widths 16 32 --regressor-widths 32 "
-    "--seed 3"
+    "--seed 3 --finetune-epochs 0"
 )
 
 
@@ -32,7 +32,7 @@ def _args(extra: str, run_dir) -> argparse.Namespace:
 @pytest.fixture(scope="module")
 def toy_run(tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("train")
-    assert train.run(_args("--encoder-epochs 1 --regressor-epochs 6 --lr 0.05", run_dir)) == 0
+    assert train.run(_args("--encoder-epochs 1 --regressor-epochs 6 --finetune-epochs 2 --lr 0.05", run_dir)) == 0
     return run_dir
 
 
@@ -41,6 +41,14 @@ def test_regressor_loss_falls(toy_run):
     assert len(rows) == 6
     assert rows[-1]["train"] < 0.8 * rows[0]["train"]
     assert min(h["val"] for h in rows) < rows[0]["val"]
+
+
+def test_finetune_phase_runs_end_to_end(toy_run):
+    history = json.loads((toy_run / "history.json").read_text())["history"]
+    assert [h["phase"] for h in history] == ["encoder"] + ["regressor"] * 6 + ["finetune"] * 2
+    best_b = min(h["val"] for h in history if h["phase"] == "regressor")
+    summary = json.loads((toy_run / "history.json").read_text())
+    assert summary["final_val_normal_loss"] <= best_b  # the shipped weights are the best of (b) and (c)
 
 
 def test_checkpoint_records_recipe_and_loads(toy_run):

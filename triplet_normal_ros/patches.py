@@ -47,6 +47,7 @@ def build_patches(
     valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
     safe = pool.clamp_min(0)
     local = (cloud[safe].to(torch.float64) - centres.to(torch.float64).unsqueeze(1)) / radius
+    local = torch.where(mask.unsqueeze(-1), local, 0.0)  # padding may index a NaN point
     eigvals, frame = principal_frames(masked_covariance(local, mask), valid)
     frame = canonical_signs(frame, local, mask)
     rot = frame if rotation is None else rotation.to(torch.float64)

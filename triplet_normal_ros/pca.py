@@ -4,7 +4,11 @@ import torch
 
 
 def masked_covariance(points: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """Mean-centred covariance of the masked points of each row: (B, P, 3), (B, P) -> (B, 3, 3)."""
+    """Mean-centred covariance of the masked points of each row: (B, P, 3), (B, P) -> (B, 3, 3).
+
+    Masked-out entries are zeroed first: padding may point at a NaN point, and NaN × 0 is still NaN.
+    """
+    points = torch.where(mask.unsqueeze(-1), points, 0.0)
     weight = mask.to(points.dtype).unsqueeze(-1)
     count = weight.sum(dim=1).clamp_min(1.0)
     mean = (points * weight).sum(dim=1) / count
@@ -40,6 +44,7 @@ def canonical_signs(frame: torch.Tensor, points: torch.Tensor, mask: torch.Tenso
     mirrored poses; a canonical pose makes the learned estimate rotation-equivariant and the learning problem smaller.
     A symmetric patch (zero skew) keeps +, which is harmless precisely because it looks the same either way.
     """
+    points = torch.where(mask.unsqueeze(-1), points, 0.0)
     weight = mask.to(points.dtype).unsqueeze(-1)
     mean = (points * weight).sum(dim=1) / weight.sum(dim=1).clamp_min(1.0)
     centred = (points - mean.unsqueeze(1)) * weight

@@ -33,6 +33,7 @@ class Recipe:
     encoder_epochs: int = 2
     regressor_epochs: int = 40
     regressor_patches_per_shape: int = 800
+    finetune_epochs: int = 4
     batch_size: int = 64
     lr: float = 0.01
     momentum: float = 0.9
@@ -53,6 +54,7 @@ class Recipe:
 RECIPES = {
     # The paper: 8000 patches per shape, 5 + 50 epochs, k = 500. Sized for a GPU.
     "paper": Recipe(
+        finetune_epochs=0,
         k=500,
         patches_per_shape=8000,
         encoder_epochs=5,
@@ -89,11 +91,12 @@ def train(
     if recipe.triplet and not encoder_from:
         _phase_encoder(model, recipe, train_set, val_set, dev, run_dir, state, history)
     _phase_regressor(model, recipe, train_set, val_set, dev, run_dir, state, history)
+    _phase_finetune(model, recipe, train_set, val_set, dev, run_dir, state, history)
     summary = {
         "wall_seconds": round(time.time() - start, 1),
         "device": str(dev),
         "history": history,
-        "final_val_normal_loss": history[-1]["val"] if history else None,
+        "final_val_normal_loss": min((h["val"] for h in history if h["phase"] != "encoder"), default=None),
     }
     meta = {
         "k": recipe.k,
@@ -153,7 +156,11 @@ def _phase_encoder(model, recipe, train_set, val_set, dev, run_dir, state, histo
 def _phase_regressor(model, recipe, train_set, val_set, dev, run_dir, state, history) -> None:
     """With the triplet encoder frozen, the latents are computed once and the regressor trains on them; without it
     (the ablation), encoder and regressor train together on the normal loss."""
+    if state and state["phase"] == "finetune":
+        return
     resumed = state if state and state["phase"] == "regressor" and state["epoch"] >= 0 else None
+    if resumed and resumed["epoch"] + 1 >= recipe.regressor_epochs:
+        return  # finished before; resuming goes on to the next phase
     params = list(model.regressor.parameters()) + ([] if recipe.triplet else list(model.encoder.parameters()))
     opt, sched = _optimiser(params, recipe, resumed)
     train = collect_normal_patches(train_set, recipe.regressor_patches_per_shape, recipe.seed + 20_000, "patches")
@@ -161,16 +168,62 @@ def _phase_regressor(model, recipe, train_set, val_set, dev, run_dir, state, his
     if recipe.triplet:
         train, val = _encoded(model.encoder, train, dev), _encoded(model.encoder, val, dev)
     head = model.regressor if recipe.triplet else model
-    best = (float("inf"), None)
-    for epoch in range((resumed["epoch"] + 1) if resumed else 0, recipe.regressor_epochs):
-        train_loss = _normal_epoch(head, train, opt, recipe, dev, f"regressor {epoch + 1}/{recipe.regressor_epochs}")
+    _fit_normals(
+        model,
+        head,
+        "regressor",
+        recipe.regressor_epochs,
+        resumed,
+        train,
+        val,
+        opt,
+        sched,
+        recipe,
+        dev,
+        run_dir,
+        history,
+    )
+
+
+def _phase_finetune(model, recipe, train_set, val_set, dev, run_dir, state, history) -> None:
+    """Phase (c), our addition (docs/MODEL.md): encoder and regressor together on the normal loss, starting from the
+    triplet encoder and the trained regressor. On the CPU budget the frozen triplet latent alone only matched PCA."""
+    if recipe.finetune_epochs <= 0 or not recipe.triplet:
+        return
+    resumed = state if state and state["phase"] == "finetune" else None
+    opt, sched = _optimiser(list(model.parameters()), recipe, resumed)
+    train = collect_normal_patches(train_set, recipe.regressor_patches_per_shape, recipe.seed + 20_000, "patches")
+    val = collect_normal_patches(val_set, recipe.val_patches_per_cloud, recipe.seed + 30_000, "val patches")
+    end_to_end = dataclasses.replace(recipe, triplet=False)  # batch size of the end-to-end path
+    _fit_normals(
+        model,
+        model,
+        "finetune",
+        recipe.finetune_epochs,
+        resumed,
+        train,
+        val,
+        opt,
+        sched,
+        end_to_end,
+        dev,
+        run_dir,
+        history,
+    )
+
+
+def _fit_normals(model, head, phase, epochs, resumed, train, val, opt, sched, recipe, dev, run_dir, history) -> None:
+    """Epochs of the normal loss on `head`; the model ends with the weights of its best validation epoch."""
+    best = (_normal_eval(head, val, recipe, dev), None)
+    for epoch in range((resumed["epoch"] + 1) if resumed else 0, epochs):
+        train_loss = _normal_epoch(head, train, opt, recipe, dev, f"{phase} {epoch + 1}/{epochs}")
         val_loss = _normal_eval(head, val, recipe, dev)
         sched.step(val_loss)
         if val_loss < best[0]:
             best = (val_loss, {k: v.detach().clone() for k, v in model.state_dict().items()})
         history.append(
             {
-                "phase": "regressor",
+                "phase": phase,
                 "epoch": epoch,
                 "train": train_loss,
                 "val": val_loss,
@@ -178,7 +231,7 @@ def _phase_regressor(model, recipe, train_set, val_set, dev, run_dir, state, his
                 "n": len(train.patches),
             }
         )
-        _save_state(run_dir, "regressor", epoch, model, opt, sched, history)
+        _save_state(run_dir, phase, epoch, model, opt, sched, history)
     if best[1] is not None:  # ship the best validation epoch, not the last
         model.load_state_dict(best[1])
 
@@ -304,8 +357,9 @@ def _plot_curves(history: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    for ax, phase, title in zip(axes, ("encoder", "regressor"), ("(a) triplet loss", "(b) normal loss"), strict=True):
+    fig, axes = plt.subplots(1, 3, figsize=(14, 3.6))
+    titles = ("(a) triplet loss", "(b) normal loss, frozen encoder", "(c) normal loss, end to end")
+    for ax, phase, title in zip(axes, ("encoder", "regressor", "finetune"), titles, strict=True):
         rows = [h for h in history if h["phase"] == phase]
         if rows:
             epochs = [h["epoch"] + 1 for h in rows]
@@ -338,6 +392,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "encoder_epochs",
         "regressor_epochs",
         "regressor_patches_per_shape",
+        "finetune_epochs",
         "batch_size",
         "n_points",
         "exponent",

@@ -1,0 +1,155 @@
+"""Shared fixtures: a colcon-built install of this package and a way to run its installed ``node`` as a process.
+
+The ROS graph is kept private to the test run: localhost-only discovery and a random domain id, so parallel runs and
+other ROS users on the machine do not see each other.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE = "triplet_normal_ros"
+COLCON = Path(sys.executable).with_name("colcon")
+
+
+@pytest.fixture(scope="session")
+def ros_env() -> Iterator[dict[str, str]]:
+    """Process environment for this run's private ROS graph; also applied to the test process itself."""
+    saved = dict(os.environ)
+    os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ["RCUTILS_COLORIZED_OUTPUT"] = "0"
+    os.environ["PYTHONUNBUFFERED"] = "1"
+    yield dict(os.environ)
+    os.environ.clear()
+    os.environ.update(saved)
+
+
+def colcon_build(workspace: Path, *extra: str) -> Path:
+    """``colcon build`` this repository into ``workspace``; returns the package's install prefix."""
+    workspace.mkdir(parents=True, exist_ok=True)
+    cmd = [str(COLCON), "--log-base", str(workspace / "log"), "build", "--base-paths", str(REPO)]
+    cmd += ["--build-base", str(workspace / "build"), "--install-base", str(workspace / "install"), *extra]
+    done = subprocess.run(cmd, cwd=workspace, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, f"colcon build failed:\n{done.stdout[-4000:]}\n{done.stderr[-4000:]}"
+    return workspace / "install" / PACKAGE
+
+
+@pytest.fixture(scope="session")
+def install_prefix(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A plain (copying) colcon install, built once per session."""
+    return colcon_build(tmp_path_factory.mktemp("ws"))
+
+
+@pytest.fixture(scope="session")
+def symlink_install_prefix(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A ``--symlink-install`` colcon install, built once per session."""
+    return colcon_build(tmp_path_factory.mktemp("ws_symlink"), "--symlink-install")
+
+
+def site_packages(prefix: Path) -> Path:
+    return prefix / "lib" / f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages"
+
+
+def installed_env(prefix: Path, ros_env: Mapping[str, str]) -> dict[str, str]:
+    """What ``source install/setup.bash`` would give a Python package: the install's site-packages first."""
+    env = dict(ros_env)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(site_packages(prefix)), env.get("PYTHONPATH")) if p)
+    return env
+
+
+def _yaml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_yaml_value(v) for v in value) + "]"
+    return repr(value)
+
+
+def params_yaml(path: Path, params: Mapping[str, Any], reliable_topics: tuple[str, ...] = ()) -> Path:
+    """A ROS 2 parameter file for every node (``/**``); ``reliable_topics`` get a subscription QoS override."""
+    lines = ["/**:", "  ros__parameters:"] + [f"    {k}: {_yaml_value(v)}" for k, v in params.items()]
+    if reliable_topics:
+        lines.append("    qos_overrides:")
+        for topic in reliable_topics:
+            lines += [f"      {topic}:", "        subscription:", "          reliability: reliable"]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+class NodeProcess:
+    """The installed ``node`` executable running in its own process, its output captured to a file."""
+
+    def __init__(
+        self, prefix: Path, env: Mapping[str, str], params_file: Path, remaps: Mapping[str, str], log_path: Path
+    ) -> None:
+        self.executable = prefix / "lib" / PACKAGE / "node"
+        self.log_path = log_path
+        args = [str(self.executable), "--ros-args", "--params-file", str(params_file)]
+        for name, target in remaps.items():
+            args += ["-r", f"{name}:={target}"]
+        self._log = self.log_path.open("w")
+        self.proc = subprocess.Popen(
+            args, env=dict(env), stdout=self._log, stderr=subprocess.STDOUT, cwd=log_path.parent
+        )
+
+    @property
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def wait_for_log(self, text: str, timeout: float = 60.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if text in self.log:
+                return True
+            if self.proc.poll() is not None:
+                return text in self.log
+            time.sleep(0.05)
+        return False
+
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 10.0) -> tuple[int | None, float]:
+        """Send ``sig``; (exit code or None if still running after ``timeout``, seconds until exit)."""
+        start = time.monotonic()
+        self.proc.send_signal(sig)
+        try:
+            code = self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            code = None
+        return code, time.monotonic() - start
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+        self._log.close()
+
+
+@pytest.fixture
+def start_node(install_prefix: Path, ros_env: dict[str, str], tmp_path: Path) -> Iterator[Any]:
+    """Factory: start_node(params | params_file, remaps, reliable_topics=()) -> NodeProcess; all killed afterwards."""
+    started: list[NodeProcess] = []
+
+    def start(params: Mapping[str, Any] | Path, remaps: Mapping[str, str], reliable_topics: tuple[str, ...] = ()):
+        name = f"node_{len(started)}"
+        path = params if isinstance(params, Path) else params_yaml(tmp_path / f"{name}.yaml", params, reliable_topics)
+        env = installed_env(install_prefix, ros_env)
+        node = NodeProcess(install_prefix, env, path, remaps, tmp_path / f"{name}.log")
+        started.append(node)
+        return node
+
+    yield start
+    for node in started:
+        node.close()
