@@ -26,7 +26,11 @@ EXPONENTS = (2, 4, 8, 12)
 
 
 def _variants(args: argparse.Namespace, base: Recipe) -> list[tuple[str, Recipe, Path | None]]:
-    budget = {"regressor_patches_per_shape": args.patches_per_shape, "regressor_epochs": args.epochs}
+    budget = {
+        "regressor_patches_per_shape": args.patches_per_shape,
+        "regressor_epochs": args.epochs,
+        "finetune_epochs": 0,
+    }
     rows = [(f"exponent {n}", dataclasses.replace(base, exponent=n, **budget), args.encoder_from) for n in EXPONENTS]
     rows.append(("no triplet encoder (direct)", dataclasses.replace(base, triplet=False, **budget), None))
     return rows

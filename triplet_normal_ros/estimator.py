@@ -23,8 +23,9 @@ METHODS = ("learned", "pca")
 FALLBACK_K = 500
 #: The learned method draws its k points from the nearest POOL_FACTOR * k points inside the ball.
 POOL_FACTOR = 4
-#: Query points per neighbour-search chunk; bounds the (chunk, pool) index block.
+#: Query points per neighbour-search chunk; bounds the (chunk, pool) index block and the cancel latency.
 CHUNK = 4096
+PCA_CHUNK = 16384
 
 
 class EstimatorError(ValueError):
@@ -114,18 +115,22 @@ class NormalEstimator:
         timings = {} if timings is None else timings
         with _timed(timings, "neighbours"):
             index = NeighbourIndex(points)
+        # Non-finite query points keep their NaN rows without costing a search (a third of a Kinect frame).
+        todo = np.flatnonzero(index.finite[query])
         cloud = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64)).to(self.device)
-        for lo in range(0, len(query), CHUNK):
+        chunk = PCA_CHUNK if self.method == "pca" else CHUNK
+        for lo in range(0, len(todo), chunk):
             if cancel is not None and cancel.is_set():
                 raise EstimationCancelled("estimation cancelled")
-            rows = query[lo : lo + CHUNK]
+            out = todo[lo : lo + chunk]
+            rows = query[out]
             with _timed(timings, "neighbours"):
                 pool, _ = index.ball(points[rows], self.radius, self._pool_size())
-            centres = cloud[torch.from_numpy(rows).to(self.device)]
-            pool_t = torch.from_numpy(pool).to(self.device)
+            rows_t = torch.from_numpy(rows).to(self.device)
             run = self._pca_chunk if self.method == "pca" else self._learned_chunk
-            n, c = run(cloud, centres, pool_t, torch.from_numpy(rows).to(self.device), cancel, timings)
-            normals[lo : lo + len(rows)], curvature[lo : lo + len(rows)] = n, c
+            normals[out], curvature[out] = run(
+                cloud, cloud[rows_t], torch.from_numpy(pool).to(self.device), rows_t, cancel, timings
+            )
         return normals, curvature
 
     def _pool_size(self) -> int:

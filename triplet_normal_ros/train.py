@@ -33,7 +33,8 @@ class Recipe:
     encoder_epochs: int = 2
     regressor_epochs: int = 40
     regressor_patches_per_shape: int = 800
-    finetune_epochs: int = 4
+    finetune_epochs: int = 12
+    finetune_lr: float = 0.001
     batch_size: int = 64
     lr: float = 0.01
     momentum: float = 0.9
@@ -191,7 +192,7 @@ def _phase_finetune(model, recipe, train_set, val_set, dev, run_dir, state, hist
     if recipe.finetune_epochs <= 0 or not recipe.triplet:
         return
     resumed = state if state and state["phase"] == "finetune" else None
-    opt, sched = _optimiser(list(model.parameters()), recipe, resumed)
+    opt, sched = _optimiser(list(model.parameters()), dataclasses.replace(recipe, lr=recipe.finetune_lr), resumed)
     train = collect_normal_patches(train_set, recipe.regressor_patches_per_shape, recipe.seed + 20_000, "patches")
     val = collect_normal_patches(val_set, recipe.val_patches_per_cloud, recipe.seed + 30_000, "val patches")
     end_to_end = dataclasses.replace(recipe, triplet=False)  # batch size of the end-to-end path
@@ -401,6 +402,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ):
         parser.add_argument("--" + name.replace("_", "-"), type=int)
     parser.add_argument("--lr", type=float)
+    parser.add_argument("--finetune-lr", type=float)
     parser.add_argument("--encoder-widths", type=int, nargs="+", dest="encoder")
     parser.add_argument("--regressor-widths", type=int, nargs="+", dest="regressor")
 
