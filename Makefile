@@ -42,5 +42,15 @@ lint: venv
 test: venv lint
 	$(PY) -m pytest test -q
 
+# Offline tools on the shipped data and checkpoint (see docs/CLI.md, docs/TRAINING.md).
+train: venv
+	$(VENV)/bin/triplet-normal train --recipe cpu --run-dir out/train_cpu
+
+eval: venv
+	$(VENV)/bin/triplet-normal eval
+
+bench: venv
+	$(VENV)/bin/triplet-normal bench
+
 clean:
 	rm -rf $(VENV) build install log out .pytest_cache
