@@ -33,7 +33,7 @@ class Recipe:
     encoder_epochs: int = 2
     regressor_epochs: int = 40
     regressor_patches_per_shape: int = 800
-    finetune_epochs: int = 12
+    finetune_epochs: int = 0
     finetune_lr: float = 0.001
     batch_size: int = 64
     lr: float = 0.01
