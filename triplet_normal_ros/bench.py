@@ -33,11 +33,18 @@ def torus_cloud(n: int, seed: int = 0, major: float = 1.0, minor: float = 0.4) -
     return points + rng.normal(scale=NOISE_REL * bbox_diagonal(points), size=points.shape)
 
 
-def bench_one(points: np.ndarray, method: str, device: str, queries: int, checkpoint: str | None) -> dict:
-    """Time one (method, device) on `queries` fixed-seed query points after a small warm-up call."""
+#: PCA is also timed with Open3D's usual hybrid cap (KDTreeSearchParamHybrid(radius, max_nn=30)) for comparison.
+PCA_SMALL_K = 30
+
+
+def bench_one(
+    points: np.ndarray, method: str, device: str, queries: int, checkpoint: str | None, k: int | None = None
+) -> dict:
+    """Time one (method, device, k) on `queries` fixed-seed query points after a small warm-up call."""
     from .estimator import NormalEstimator
 
-    estimator = NormalEstimator(method, radius=RADIUS_REL * bbox_diagonal(points), checkpoint=checkpoint, device=device)
+    radius = RADIUS_REL * bbox_diagonal(points)
+    estimator = NormalEstimator(method, radius=radius, k=k, checkpoint=checkpoint, device=device)
     rng = np.random.default_rng(0)
     estimator.estimate(points, rng.choice(len(points), WARMUP_QUERIES, replace=False))
     query = np.sort(rng.choice(len(points), min(queries, len(points)), replace=False))
@@ -56,7 +63,7 @@ def bench_one(points: np.ndarray, method: str, device: str, queries: int, checkp
     }
 
 
-def _plan(args: argparse.Namespace) -> list[tuple[str, str, int]]:
+def _plan(args: argparse.Namespace) -> list[tuple[str, str, int, int | None]]:
     """(method, device, queries) to time: CPU, plus CUDA when torch sees it, unless --device / --method narrow it."""
     import torch
 
@@ -75,7 +82,9 @@ def _plan(args: argparse.Namespace) -> list[tuple[str, str, int]]:
         for method in methods:
             on_cpu = device == "cpu" or (device == "auto" and not torch.cuda.is_available())
             queries = args.learned_cpu_queries if method == "learned" and on_cpu else args.points
-            plan.append((method, device, min(queries, args.points)))
+            plan.append((method, device, min(queries, args.points), None))
+            if method == "pca":
+                plan.append((method, device, args.points, PCA_SMALL_K))
     return plan
 
 
@@ -130,8 +139,8 @@ def run(args: argparse.Namespace) -> int:
     NeighbourIndex(points)
     seconds_build = time.perf_counter() - start
     results = [
-        bench_one(points, method, device, queries, args.checkpoint)
-        for method, device, queries in tqdm(plan, desc="bench", unit="run", disable=None, file=sys.stderr)
+        bench_one(points, method, device, queries, args.checkpoint, k)
+        for method, device, queries, k in tqdm(plan, desc="bench", unit="run", disable=None, file=sys.stderr)
     ]
     text = markdown(results, args.points, seconds_build, getattr(args, "argv", sys.argv[1:]))
     print(text)
