@@ -8,6 +8,7 @@ import pytest
 import torch
 from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
 
 from triplet_normal_ros.checkpoint import save_checkpoint
 from triplet_normal_ros.estimator import POOL_FACTOR, EstimationCancelled, EstimatorError, NormalEstimator
@@ -19,14 +20,8 @@ _QUATERNIONS = st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(lam
 
 
 def _rotation(quaternion: list[float]) -> np.ndarray:
-    w, x, y, z = np.asarray(quaternion, dtype=np.float64) / np.linalg.norm(quaternion)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    w, x, y, z = quaternion  # scalar-first, as drawn; scipy normalises
+    return Rotation.from_quat([x, y, z, w]).as_matrix()
 
 
 def _angles_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -4,6 +4,7 @@ import numpy as np
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
 
 from triplet_normal_ros.neighbours import NeighbourIndex
 from triplet_normal_ros.patches import build_patches, to_world
@@ -14,14 +15,8 @@ _QUATERNIONS = st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(lam
 
 
 def _rotation(quaternion: list[float]) -> np.ndarray:
-    w, x, y, z = np.asarray(quaternion, dtype=np.float64) / np.linalg.norm(quaternion)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    w, x, y, z = quaternion  # scalar-first, as drawn; scipy normalises
+    return Rotation.from_quat([x, y, z, w]).as_matrix()
 
 
 def _anisotropic_patches(seed: int, batch: int = 32, size: int = 30) -> torch.Tensor:
