@@ -53,4 +53,4 @@ bench: venv
 	$(VENV)/bin/triplet-normal bench
 
 clean:
-	rm -rf $(VENV) build install log out .pytest_cache
+	rm -rf $(VENV) build install log out .pytest_cache .hypothesis .ruff_cache

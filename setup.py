@@ -16,7 +16,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
     ],
-    install_requires=["setuptools", "numpy", "scipy", "torch", "safetensors"],
+    install_requires=["setuptools", "numpy", "scipy", "torch", "safetensors", "tqdm"],
     extras_require={
         "test": ["pytest", "hypothesis"],
         "train": ["trimesh", "manifold3d", "rtree", "tqdm", "matplotlib"],

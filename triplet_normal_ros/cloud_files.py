@@ -151,8 +151,17 @@ def _read_npy(path: Path) -> CloudData:
     return CloudData(array[:, :3].astype(np.float64), normals)
 
 
+def _pypcd4():
+    """pypcd4 is optional for the core (an `io` extra); without it .pcd files fail with one clear line."""
+    try:
+        import pypcd4
+    except ImportError:
+        raise CloudFileError(".pcd files need the pypcd4 package (pip install pypcd4)") from None
+    return pypcd4
+
+
 def _read_pcd(path: Path) -> CloudData:
-    from pypcd4 import PointCloud
+    PointCloud = _pypcd4().PointCloud
 
     cloud = PointCloud.from_path(path)
     fields = cloud.fields
@@ -331,7 +340,8 @@ def _write_ply(path: Path, points: np.ndarray, normals: np.ndarray, curvature: n
 def _write_pcd(
     path: Path, points: np.ndarray, normals: np.ndarray, curvature: np.ndarray, organized: tuple[int, int] | None
 ) -> None:
-    from pypcd4 import Encoding, PointCloud
+    pypcd4 = _pypcd4()
+    Encoding, PointCloud = pypcd4.Encoding, pypcd4.PointCloud
 
     fields = ("x", "y", "z", "normal_x", "normal_y", "normal_z", "curvature")
     table = np.column_stack([points, normals, curvature]).astype(np.float32)

@@ -142,6 +142,8 @@ class TripletNormalNode(Node):
             return NormalEstimator(**settings.estimator_args())
         except (CheckpointError, EstimatorError) as error:
             raise error_type(str(error)) from None
+        except RuntimeError as error:  # torch itself, e.g. CUDA out of memory while moving the model
+            raise error_type(f"could not build the estimator: {error}") from None
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         """Validate; rebuild the estimator for method/checkpoint/device; swap in one assignment for the next cloud."""
@@ -267,6 +269,9 @@ def _run(args: list[str] | None) -> int:
         _spin(node, stop)
         return 0
     except StartupError as error:
+        get_logger(NODE_NAME).fatal(f"cannot start: {error}")
+        return 1
+    except (RuntimeError, ValueError) as error:  # e.g. rclpy rejecting a QoS override given on the command line
         get_logger(NODE_NAME).fatal(f"cannot start: {error}")
         return 1
     finally:

@@ -210,14 +210,17 @@ def _phase_finetune(model, recipe, train_set, val_set, dev, run_dir, state, hist
         dev,
         run_dir,
         history,
+        freeze_bn=True,
     )
 
 
-def _fit_normals(model, head, phase, epochs, resumed, train, val, opt, sched, recipe, dev, run_dir, history) -> None:
+def _fit_normals(
+    model, head, phase, epochs, resumed, train, val, opt, sched, recipe, dev, run_dir, history, freeze_bn=False
+) -> None:
     """Epochs of the normal loss on `head`; the model ends with the weights of its best validation epoch."""
     best = (_normal_eval(head, val, recipe, dev), None)
     for epoch in range((resumed["epoch"] + 1) if resumed else 0, epochs):
-        train_loss = _normal_epoch(head, train, opt, recipe, dev, f"{phase} {epoch + 1}/{epochs}")
+        train_loss = _normal_epoch(head, train, opt, recipe, dev, f"{phase} {epoch + 1}/{epochs}", freeze_bn)
         val_loss = _normal_eval(head, val, recipe, dev)
         sched.step(val_loss)
         if val_loss < best[0]:
@@ -278,8 +281,12 @@ def _triplet_eval(encoder, data: TripletSet, dev) -> float:
     return float(sum(parts) / max(1, len(data.anchor)))
 
 
-def _normal_epoch(head, data: NormalSet, opt, recipe, dev, desc) -> float:
+def _normal_epoch(head, data: NormalSet, opt, recipe, dev, desc, freeze_bn: bool = False) -> float:
     head.train()
+    if freeze_bn:  # keep the running statistics the later layers were trained on
+        for module in head.modules():
+            if isinstance(module, torch.nn.BatchNorm1d):
+                module.eval()
     order = torch.randperm(len(data.patches))
     losses = []
     batch_size = recipe.batch_size if not recipe.triplet else max(recipe.batch_size, 256)
