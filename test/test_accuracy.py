@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from triplet_normal_ros.checkpoint import default_checkpoint_path, read_metadata
+from triplet_normal_ros.cloud_files import bbox_diagonal
 from triplet_normal_ros.estimator import POOL_FACTOR, NormalEstimator
 from triplet_normal_ros.metrics import msae
 from triplet_normal_ros.training_data import HELDOUT_SHAPE, build_dataset, heldout_cad_cloud
@@ -20,7 +21,7 @@ QUERIES = 5000
 @pytest.fixture(scope="module")
 def heldout():
     cloud = heldout_cad_cloud(n_points=100_000, noise=0.005, seed=123)
-    radius = 0.05 * float(np.linalg.norm(cloud.points.max(0) - cloud.points.min(0)))
+    radius = 0.05 * bbox_diagonal(cloud.points)
     query = np.random.default_rng(11).choice(len(cloud.points), QUERIES, replace=False)
     return cloud, radius, query
 

@@ -399,3 +399,13 @@ def test_nan_first_point_does_not_poison_padded_pools() -> None:
     normals, curvature = NormalEstimator("pca", radius=0.3, k=64).estimate(points)
     assert np.isnan(normals[0]).all()
     assert np.isfinite(normals[1:]).all() and np.isfinite(curvature[1:]).all()
+
+
+def test_progress_reports_every_query_row_once() -> None:
+    rng = np.random.default_rng(5)
+    points = rng.uniform(size=(9000, 3))
+    points[:100] = np.nan
+    seen: list[int] = []
+    NormalEstimator("pca", radius=0.2, k=16).estimate(points, progress=seen.append)
+    assert sum(seen) == len(points)
+    assert len(seen) >= 2  # the non-finite rows at once, then at least one chunk

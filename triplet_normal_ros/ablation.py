@@ -37,15 +37,16 @@ def _variants(args: argparse.Namespace, base: Recipe) -> list[tuple[str, Recipe,
 
 
 def _validation_msae(checkpoint: Path, per_cloud: int, device: str) -> dict[str, float]:
-    """Mean MSAE over the CAD and the smooth validation clouds (all noise levels), 5% radius."""
-    from .training_data import build_dataset
+    """Mean MSAE over the CAD and the smooth validation clouds (all noise levels), with eval's query points and
+    radius (5 % of each cloud's diagonal)."""
+    from .cloud_files import bbox_diagonal
+    from .evaluate import RADIUS_REL, query_indices, validation_clouds
 
-    est = NormalEstimator("learned", radius=0.05, checkpoint=checkpoint, device=device)
+    est = NormalEstimator("learned", radius=RADIUS_REL, checkpoint=checkpoint, device=device)
     scores: dict[str, list[float]] = {"cad": [], "smooth": []}
-    for cloud in build_dataset("val", progress=False):
-        query = np.random.default_rng(0).choice(len(cloud.points), per_cloud, replace=False)
-        diag = float(np.linalg.norm(cloud.points.max(0) - cloud.points.min(0)))
-        est.radius = 0.05 * diag
+    for cloud in validation_clouds(quick=False):
+        query = query_indices(len(cloud.points), per_cloud)
+        est.radius = RADIUS_REL * bbox_diagonal(cloud.points)
         normals, _ = est.estimate(cloud.points, query)
         scores[cloud.kind].append(msae(normals, cloud.normals[query]))
     return {kind: float(np.mean(v)) for kind, v in scores.items()}

@@ -16,7 +16,7 @@ import numpy as np
 
 PROG = "triplet-normal"
 DEFAULT_RADIUS_REL = 0.05
-#: Inputs with more query points than this get a tqdm bar (on a terminal) and are estimated in chunks.
+#: Inputs with more query points than this get a tqdm bar (on a terminal), fed by the estimator's progress callback.
 PROGRESS_MIN_POINTS = 20_000
 
 
@@ -169,19 +169,13 @@ def run_estimate(args: argparse.Namespace) -> int:
 
 
 def estimate_with_progress(estimator, points: np.ndarray, query: np.ndarray, timings: dict | None = None):
-    """`estimator.estimate` in chunks of query points so a tqdm bar can move (shown on a terminal only)."""
+    """`estimator.estimate` with a tqdm bar fed by its progress callback (shown on a terminal only)."""
     if len(query) <= PROGRESS_MIN_POINTS:
         return estimator.estimate(points, query, timings=timings)
     from tqdm import tqdm
 
-    # Each call rebuilds the KD-tree, so keep the number of calls near 20 (a few % overhead) but the bar moving.
-    chunk = max(-(-len(query) // 20), 65_536 if estimator.method == "pca" else 4_096)
-    parts = []
     with tqdm(total=len(query), unit="pt", desc=estimator.method, disable=None, file=sys.stderr) as bar:
-        for lo in range(0, len(query), chunk):
-            parts.append(estimator.estimate(points, query[lo : lo + chunk], timings=timings))
-            bar.update(len(parts[-1][0]))
-    return np.concatenate([n for n, _ in parts]), np.concatenate([c for _, c in parts])
+        return estimator.estimate(points, query, timings=timings, progress=bar.update)
 
 
 def _check_estimate_args(args: argparse.Namespace) -> None:

@@ -6,7 +6,7 @@ then PCA or patches + network (torch, on the chosen device). Memory stays bounde
 
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -102,11 +102,13 @@ class NormalEstimator:
         query: np.ndarray | None = None,
         cancel: threading.Event | None = None,
         timings: dict[str, float] | None = None,
+        progress: Callable[[int], None] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Normals (M, 3) and curvature (M,), float32, at `query` indices (default: every point).
 
         Rows are NaN where the query point is non-finite or has fewer than 3 neighbours within the radius.
-        Normal signs are arbitrary; see `orientation.orient_towards_viewpoint`.
+        Normal signs are arbitrary; see `orientation.orient_towards_viewpoint`. `progress(n)` is called with the
+        number of query rows finished after each chunk (non-finite ones count at once), for a progress bar.
         """
         points = _as_cloud(points)
         query = _as_query(query, len(points))
@@ -117,6 +119,8 @@ class NormalEstimator:
             index = NeighbourIndex(points)
         # Non-finite query points keep their NaN rows without costing a search (a third of a Kinect frame).
         todo = np.flatnonzero(index.finite[query])
+        if progress is not None:
+            progress(len(query) - len(todo))
         cloud = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64)).to(self.device)
         chunk = PCA_CHUNK if self.method == "pca" else CHUNK
         for lo in range(0, len(todo), chunk):
@@ -131,6 +135,8 @@ class NormalEstimator:
             normals[out], curvature[out] = run(
                 cloud, cloud[rows_t], torch.from_numpy(pool).to(self.device), rows_t, cancel, timings
             )
+            if progress is not None:
+                progress(len(out))
         return normals, curvature
 
     def _pool_size(self) -> int:

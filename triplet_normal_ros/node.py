@@ -204,20 +204,16 @@ class TripletNormalNode(Node):
         self, estimator: NormalEstimator, s: NodeSettings, points: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Normals and curvature for every point; NaN rows where xyz is not finite or the ball is too sparse."""
-        normals = np.full((len(points), 3), np.nan, np.float32)
-        curvature = np.full(len(points), np.nan, np.float32)
-        finite = np.flatnonzero(np.isfinite(points).all(axis=1))
-        if finite.size == 0:
+        if not np.isfinite(points).all(axis=1).any():
             self.get_logger().warning(
                 "cloud has no finite points; publishing NaN normals", throttle_duration_sec=THROTTLE_S
             )
-            return normals, curvature
+            return np.full((len(points), 3), np.nan, np.float32), np.full(len(points), np.nan, np.float32)
         estimator.radius, estimator.k, estimator.batch_size = s.radius, s.k, s.batch_size
-        valid = points[finite]  # holes carry no neighbours; dropping them first keeps every index in range
-        n, c = estimator.estimate(valid, cancel=self._cancel)
+        # Holes (non-finite xyz) are skipped by the estimator itself and come back as NaN rows.
+        normals, curvature = estimator.estimate(points, cancel=self._cancel)
         if s.orient:
-            n = orient_towards_viewpoint(valid, n, s.viewpoint)
-        normals[finite], curvature[finite] = n, c
+            normals = orient_towards_viewpoint(points, normals, s.viewpoint)
         return normals, curvature
 
     def _log_stats(self) -> None:

@@ -7,6 +7,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from .cloud_files import bbox_diagonal
 from .neighbours import NeighbourIndex
 from .patches import Patches, build_patches
 from .triplets import mine_triplets
@@ -35,7 +36,7 @@ class CloudSampler:
         self.points = np.asarray(points, dtype=np.float64)
         self.normals = np.asarray(normals, dtype=np.float64)
         self.index = NeighbourIndex(self.points)
-        self.radius = radius_rel * float(np.linalg.norm(self.points.max(0) - self.points.min(0)))
+        self.radius = radius_rel * bbox_diagonal(self.points)
         self.k = k
         self.cloud = torch.from_numpy(self.points)
 
