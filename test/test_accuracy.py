@@ -1,9 +1,9 @@
-"""Accuracy regression: the shipped checkpoint on a noisy CAD shape it never saw (from the validation catalogue)
-must stay clearly below PCA's error at the same radius, which is the reason the learned method exists.
+"""Accuracy regression: the shipped checkpoint on a CAD shape it never saw (from the validation catalogue) must stay
+clearly below PCA's error at the same radius, which is the reason the learned method exists.
 
-Measured when the checkpoint shipped, on 10k query points: at 0.5 % noise MSAE 0.072 against PCA's 0.088 (0.81x), at
-sharp features 0.218 against 0.293. At 1 % noise it only matches PCA (1.05x); that miss is reported in
-docs/RESULTS.md, not tested away.
+Measured when the checkpoint shipped, 5000 query points: MSAE 0.0236 against PCA's 0.0801 clean (0.29x), 0.0580
+against 0.0882 at 0.5 % noise (0.66x), 0.1065 against 0.1144 at 1 % (0.93x). The issue's 0.25x target at 0.5 and
+1 % is missed; docs/RESULTS.md says so and why. The bounds below leave room for numeric drift, not for regressions.
 """
 
 import numpy as np
@@ -18,9 +18,8 @@ from triplet_normal_ros.training_data import HELDOUT_SHAPE, build_dataset, heldo
 QUERIES = 5000
 
 
-@pytest.fixture(scope="module")
-def heldout():
-    cloud = heldout_cad_cloud(n_points=100_000, noise=0.005, seed=123)
+def _heldout(noise: float):
+    cloud = heldout_cad_cloud(n_points=100_000, noise=noise, seed=123)
     radius = 0.05 * bbox_diagonal(cloud.points)
     query = np.random.default_rng(11).choice(len(cloud.points), QUERIES, replace=False)
     return cloud, radius, query
@@ -38,10 +37,11 @@ def test_heldout_shape_is_not_in_the_training_catalogue():
     assert read_metadata(default_checkpoint_path())["training"]["recipe"]["shapes"] is None  # all training shapes
 
 
-def test_shipped_checkpoint_beats_pca_on_noisy_heldout_cad(heldout):
-    cloud, radius, query = heldout
+@pytest.mark.parametrize(("noise", "bound"), [(0.0, 0.4), (0.005, 0.75), (0.01, 1.0)])
+def test_shipped_checkpoint_beats_pca_on_heldout_cad(noise: float, bound: float):
+    cloud, radius, query = _heldout(noise)
     k = NormalEstimator("learned", radius=radius, device="cpu").k
     learned = _msae("learned", cloud, radius, query)
     pca = _msae("pca", cloud, radius, query, k=POOL_FACTOR * k)  # PCA sees the whole pool the network draws from
-    print(f"held-out {HELDOUT_SHAPE} at 0.5% noise: MSAE learned {learned:.4f} vs PCA {pca:.4f}")
-    assert learned < 0.9 * pca
+    print(f"held-out {HELDOUT_SHAPE} at {noise:.1%} noise: MSAE learned {learned:.4f} vs PCA {pca:.4f}")
+    assert learned < bound * pca

@@ -22,13 +22,14 @@ from triplet_normal_ros.model import TripletNormalNet
 META = {"k": 16, "radius_convention": "absolute", "recipe": "test", "data_seed": 7}
 
 
-def _net(seed: int = 0) -> TripletNormalNet:
+def _net(seed: int = 0, residual: bool = False) -> TripletNormalNet:
     torch.manual_seed(seed)
-    net = TripletNormalNet((16, 32), (16,))
+    net = TripletNormalNet((16, 32), (16,), residual)
     with torch.no_grad():  # non-default BatchNorm statistics must survive the round trip too
         for norm in (m for m in net.modules() if isinstance(m, torch.nn.BatchNorm1d)):
             norm.running_mean.uniform_(-1, 1)
             norm.running_var.uniform_(0.5, 2.0)
+        net.regressor.mlp[-1].weight.uniform_(-1, 1)  # a residual head starts at zero; give it a correction
     return net.eval()
 
 
@@ -46,10 +47,22 @@ def test_round_trip_gives_identical_outputs_and_keeps_the_metadata(saved: tuple[
     with torch.no_grad():
         assert torch.equal(model(x), net(x))
     assert {key: meta[key] for key in META} == META
-    assert meta["architecture"] == {"encoder": [16, 32], "regressor": [16]}
+    assert meta["architecture"] == {"encoder": [16, 32], "regressor": [16], "residual": False}
     assert meta["format"] == FORMAT and meta["version"]
     assert read_metadata(path) == meta
     assert not list(path.parent.glob("*.tmp")), "the atomic write left its temporary file behind"
+
+
+def test_residual_head_round_trips(tmp_path: Path) -> None:
+    net = _net(1, residual=True)
+    model, meta = load_checkpoint(save_checkpoint(tmp_path / "residual.safetensors", net, META))
+    assert meta["architecture"]["residual"] is True and model.regressor.residual
+    x = torch.randn(5, 16, 3)
+    with torch.no_grad():
+        assert torch.equal(model(x), net(x))
+        plain = TripletNormalNet((16, 32), (16,))
+        plain.load_state_dict(net.state_dict())
+        assert not torch.allclose(plain.eval()(x), net(x))  # the flag changes the output, so it must be stored
 
 
 def _assert_refused(path: Path, match: str | None = None) -> None:

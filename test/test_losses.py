@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from triplet_normal_ros.losses import normal_loss, triplet_loss
+from triplet_normal_ros.losses import angle_loss, normal_loss, patch_loss, triplet_loss
 
 Z = [0.0, 0.0, 1.0]
 
@@ -92,3 +92,28 @@ def test_normal_loss_has_gradients_for_training() -> None:
     pred = torch.tensor([_unit(20.0, 40.0)], dtype=torch.float64, requires_grad=True)
     normal_loss(pred, _vec(Z), _patch([Z, _unit(30.0)])).backward()
     assert pred.grad is not None and bool(torch.isfinite(pred.grad).all()) and pred.grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize("deg", [0.0, 10.0, 45.0, 89.0, 90.0, 135.0, 180.0])
+def test_angle_loss_is_the_squared_sign_invariant_angle(deg: float) -> None:
+    expected = math.radians(min(deg, 180.0 - deg)) ** 2
+    assert angle_loss(_vec(_unit(deg, 30.0)), _vec(Z)).item() == pytest.approx(expected, abs=1e-12)
+
+
+def test_angle_loss_hedges_between_two_faces_where_cos8_commits() -> None:
+    """Centre on face z or face x with equal odds: the squared angle is least at the bisector, cos^8 at a face."""
+    centres = torch.tensor([Z, [1.0, 0.0, 0.0]], dtype=torch.float64)
+    patches = centres.unsqueeze(1)
+
+    def mean_loss(kind: str, deg: float) -> float:
+        pred = _vec(_unit(deg)).expand(2, 3)
+        return patch_loss(kind, pred, centres, patches).item()
+
+    assert mean_loss("angle", 45.0) < min(mean_loss("angle", 0.0), mean_loss("angle", 30.0))
+    assert mean_loss("cos", 0.0) < min(mean_loss("cos", 45.0), mean_loss("cos", 30.0))
+
+
+def test_angle_loss_gradients_are_finite_at_zero_and_right_angles() -> None:
+    pred = torch.tensor([Z, [1.0, 0.0, 0.0], _unit(20.0)], dtype=torch.float64, requires_grad=True)
+    angle_loss(pred, _vec(Z).expand(3, 3)).backward()
+    assert torch.isfinite(pred.grad).all() and pred.grad[2].abs().sum() > 0

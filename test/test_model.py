@@ -64,7 +64,7 @@ def test_encoder_latent_width_and_config_round_trip() -> None:
     clone.eval()
     x = torch.randn(5, 12, 3)
     torch.testing.assert_close(clone(x), net(x))
-    assert net.config == {"encoder": [16, 32], "regressor": [16]}
+    assert net.config == {"encoder": [16, 32], "regressor": [16], "residual": False}
 
 
 def test_training_mode_reaches_every_parameter() -> None:
@@ -72,3 +72,18 @@ def test_training_mode_reaches_every_parameter() -> None:
     net(torch.randn(6, 10, 3)).sum().backward()
     missing = [name for name, p in net.named_parameters() if p.grad is None or not bool(p.grad.abs().sum() > 0)]
     assert not missing
+
+
+def test_residual_head_starts_as_the_pca_normal_and_round_trips() -> None:
+    torch.manual_seed(6)
+    net = TripletNormalNet((16, 32), (16,), residual=True).eval()
+    out = net(torch.randn(9, 12, 3))
+    torch.testing.assert_close(out, torch.tensor([0.0, 0.0, 1.0]).expand(9, 3))  # +z is the PCA normal
+    net.train()(torch.randn(6, 10, 3))[:, 0].sum().backward()
+    assert net.regressor.mlp[-1].weight.grad.abs().sum() > 0  # ... and it can learn a correction
+    clone = TripletNormalNet.from_config(net.config)
+    assert clone.regressor.residual and net.config["residual"] is True
+
+
+def test_configs_written_before_the_residual_head_load_as_direct_regressors() -> None:
+    assert not TripletNormalNet.from_config({"encoder": [16, 32], "regressor": [16]}).regressor.residual

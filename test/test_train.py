@@ -19,7 +19,7 @@ from triplet_normal_ros.triplets import mine_triplets
 TOY = (
     "--shapes box_3x2x1 sphere --val-shapes v_notch_block --n-points 3000 --k 32 --patches-per-shape 96 "
     "--regressor-patches-per-shape 256 --val-patches-per-cloud 16 --encoder-widths 16 32 --regressor-widths 32 "
-    "--seed 3 --finetune-epochs 0"
+    "--seed 3 --finetune-epochs 0 --no-residual --loss cos"
 )
 
 
@@ -105,3 +105,20 @@ def test_triplet_patches_share_the_anchor_frame():
     s = sampler.patches(anchors, gen, rotation=a.rotation)
     assert torch.equal(s.rotation, a.rotation)
     assert s.points.norm(dim=-1).max() <= 1.0 + 1e-5
+
+
+def test_cpu_recipe_options_residual_head_and_angle_loss_reach_the_checkpoint(tmp_path):
+    run_dir = tmp_path / "residual"
+    train.run(_args("--encoder-epochs 1 --regressor-epochs 3 --residual --loss angle", run_dir))
+    meta = read_metadata(run_dir / "model.safetensors")
+    assert meta["architecture"]["residual"] is True
+    assert meta["training"]["recipe"]["loss"] == "angle"
+    history = json.loads((run_dir / "history.json").read_text())["history"]
+    assert all(math.isfinite(h["val"]) and h["val"] < (math.pi / 2) ** 2 for h in history if h["phase"] != "encoder")
+    # The head corrects the PCA normal, so on a clean plane it must stay on the plane's normal.
+    xy = np.random.default_rng(0).uniform(-1, 1, (3000, 2))
+    plane = np.c_[xy, 0.3 * xy[:, 0] + 0.1 * xy[:, 1]]
+    est = NormalEstimator("learned", radius=0.2, checkpoint=run_dir / "model.safetensors", device="cpu")
+    normals, _ = est.estimate(plane, query=np.arange(0, 3000, 30))
+    truth = np.array([0.3, 0.1, -1.0]) / np.linalg.norm([0.3, 0.1, -1.0])
+    assert np.degrees(np.arccos(np.abs(normals @ truth))).max() < 10.0

@@ -1,4 +1,5 @@
-"""The paper's two training losses: the triplet loss (Eq. 4) and the weighted cos^n normal loss (Eq. 5-6)."""
+"""The paper's two training losses, the triplet loss (Eq. 4) and the weighted cos^n normal loss (Eq. 5-6), and the
+squared-angle loss of our CPU recipe (docs/MODEL.md)."""
 
 import math
 
@@ -33,3 +34,28 @@ def normal_loss(
         weight = weight * valid.to(weight.dtype)
     per_patch = (weight * (1.0 - cos.pow(exponent))).sum(dim=1) / weight.sum(dim=1).clamp_min(1e-12)
     return per_patch.mean()
+
+
+def angle_loss(predicted: torch.Tensor, centre_normal: torch.Tensor) -> torch.Tensor:
+    """Mean squared sign-invariant angle (rad²) to the centre normal: the MSAE that evaluation reports, as a loss.
+
+    Unlike cos^8 it does not reward committing to one face when the patch cannot tell which face the centre is on:
+    its minimiser hedges between them in proportion to their odds. atan2 keeps the gradient finite at 0 and 90°.
+    """
+    dot = (predicted * centre_normal).sum(dim=-1).abs()
+    cross = torch.linalg.vector_norm(torch.linalg.cross(predicted, centre_normal, dim=-1), dim=-1)
+    return torch.atan2(cross, dot).pow(2).mean()
+
+
+def patch_loss(
+    kind: str,
+    predicted: torch.Tensor,
+    centre_normal: torch.Tensor,
+    patch_normals: torch.Tensor,
+    exponent: int = 8,
+    support_deg: float = 15.0,
+) -> torch.Tensor:
+    """The recipe's normal loss by name: 'cos' (the paper's Eq. 5-6) or 'angle' (`angle_loss`)."""
+    if kind == "angle":
+        return angle_loss(predicted, centre_normal)
+    return normal_loss(predicted, centre_normal, patch_normals, exponent, support_deg)

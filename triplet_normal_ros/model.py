@@ -77,9 +77,16 @@ class PatchEncoder(nn.Module):
 
 
 class NormalRegressor(nn.Module):
-    """Latent -> unit normal in the patch frame."""
+    """Latent -> unit normal in the patch frame.
 
-    def __init__(self, latent_dim: int = 1024, widths: tuple[int, ...] = DEFAULT_REGRESSOR) -> None:
+    With `residual`, the MLP predicts a correction to the PCA normal, which is +z in the patch frame: the output is
+    normalize(e_z + mlp(latent)) and the last layer starts at zero, so an untrained head is exactly PCA and training
+    only moves away from it where the data pays for it (docs/MODEL.md).
+    """
+
+    def __init__(
+        self, latent_dim: int = 1024, widths: tuple[int, ...] = DEFAULT_REGRESSOR, residual: bool = False
+    ) -> None:
         super().__init__()
         layers: list[nn.Module] = []
         dims = (latent_dim, *widths)
@@ -87,23 +94,40 @@ class NormalRegressor(nn.Module):
             layers += [nn.Linear(a, b), nn.BatchNorm1d(b), nn.ReLU()]
         layers.append(nn.Linear(dims[-1], 3))
         self.mlp = nn.Sequential(*layers)
+        self.residual = residual
+        if residual:
+            nn.init.zeros_(layers[-1].weight)
+            nn.init.zeros_(layers[-1].bias)
 
     def forward(self, latent: torch.Tensor) -> torch.Tensor:
-        return nn.functional.normalize(self.mlp(latent), dim=-1)
+        out = self.mlp(latent)
+        if self.residual:
+            out = out + out.new_tensor((0.0, 0.0, 1.0))
+        return nn.functional.normalize(out, dim=-1)
 
 
 class TripletNormalNet(nn.Module):
     """Encoder + regressor; `config` is what a checkpoint stores to rebuild it."""
 
-    def __init__(self, encoder: tuple[int, ...] = DEFAULT_ENCODER, regressor: tuple[int, ...] = DEFAULT_REGRESSOR):
+    def __init__(
+        self,
+        encoder: tuple[int, ...] = DEFAULT_ENCODER,
+        regressor: tuple[int, ...] = DEFAULT_REGRESSOR,
+        residual: bool = False,
+    ):
         super().__init__()
-        self.config = {"encoder": list(encoder), "regressor": list(regressor)}
+        self.config = {"encoder": list(encoder), "regressor": list(regressor), "residual": residual}
         self.encoder = PatchEncoder(tuple(encoder))
-        self.regressor = NormalRegressor(encoder[-1], tuple(regressor))
+        self.regressor = NormalRegressor(encoder[-1], tuple(regressor), residual)
 
     @classmethod
     def from_config(cls, config: dict) -> "TripletNormalNet":
-        return cls(tuple(int(w) for w in config["encoder"]), tuple(int(w) for w in config["regressor"]))
+        """`residual` is absent from checkpoints written before it existed: those regress the normal directly."""
+        return cls(
+            tuple(int(w) for w in config["encoder"]),
+            tuple(int(w) for w in config["regressor"]),
+            bool(config.get("residual", False)),
+        )
 
     def forward(self, patches: torch.Tensor) -> torch.Tensor:
         return self.regressor(self.encoder(patches))
