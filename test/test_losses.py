@@ -117,3 +117,8 @@ def test_angle_loss_gradients_are_finite_at_zero_and_right_angles() -> None:
     pred = torch.tensor([Z, [1.0, 0.0, 0.0], _unit(20.0)], dtype=torch.float64, requires_grad=True)
     angle_loss(pred, _vec(Z).expand(3, 3)).backward()
     assert torch.isfinite(pred.grad).all() and pred.grad[2].abs().sum() > 0
+
+
+def test_an_unknown_loss_name_is_refused_not_silently_replaced() -> None:
+    with pytest.raises(ValueError, match="angel"):
+        patch_loss("angel", _vec(Z), _vec(Z), _patch([Z]))

@@ -58,4 +58,6 @@ def patch_loss(
     """The recipe's normal loss by name: 'cos' (the paper's Eq. 5-6) or 'angle' (`angle_loss`)."""
     if kind == "angle":
         return angle_loss(predicted, centre_normal)
-    return normal_loss(predicted, centre_normal, patch_normals, exponent, support_deg)
+    if kind == "cos":
+        return normal_loss(predicted, centre_normal, patch_normals, exponent, support_deg)
+    raise ValueError(f"unknown normal loss {kind!r}: expected 'cos' or 'angle'")

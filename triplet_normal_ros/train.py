@@ -308,15 +308,7 @@ def _normal_epoch(head, data: NormalSet, opt, recipe, dev, desc, freeze_bn: bool
         idx = order[lo : lo + batch_size]
         if len(idx) < 2:
             continue
-        pred = head(data.patches[idx].to(dev))
-        loss = patch_loss(
-            recipe.loss,
-            pred,
-            data.centre_normal[idx].to(dev),
-            data.patch_normals[idx].to(dev),
-            recipe.exponent,
-            recipe.support_deg,
-        )
+        loss = _recipe_loss(head, data, idx, recipe, dev)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -325,21 +317,20 @@ def _normal_epoch(head, data: NormalSet, opt, recipe, dev, desc, freeze_bn: bool
     return float(np.mean(losses))
 
 
+def _recipe_loss(head, data: NormalSet, rows, recipe: Recipe, dev) -> torch.Tensor:
+    """The recipe's normal loss of `head` on `rows` of `data` (training and validation alike)."""
+    pred = head(data.patches[rows].to(dev))
+    centre, patch = data.centre_normal[rows].to(dev), data.patch_normals[rows].to(dev)
+    return patch_loss(recipe.loss, pred, centre, patch, recipe.exponent, recipe.support_deg)
+
+
 def _normal_eval(head, data: NormalSet, recipe, dev) -> float:
     head.eval()
     total = 0.0
     with torch.inference_mode():
         for lo in range(0, len(data.patches), 512):
-            pred = head(data.patches[lo : lo + 512].to(dev))
-            loss = patch_loss(
-                recipe.loss,
-                pred,
-                data.centre_normal[lo : lo + 512].to(dev),
-                data.patch_normals[lo : lo + 512].to(dev),
-                recipe.exponent,
-                recipe.support_deg,
-            )
-            total += loss.item() * len(pred)
+            rows = slice(lo, lo + 512)
+            total += _recipe_loss(head, data, rows, recipe, dev).item() * len(data.patches[rows])
     return total / max(1, len(data.patches))
 
 
