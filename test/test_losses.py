@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from triplet_normal_ros.losses import angle_loss, normal_loss, patch_loss, triplet_loss
+from triplet_normal_ros.losses import angle_loss, normal_loss, patch_loss, relative_angle_loss, triplet_loss
 
 Z = [0.0, 0.0, 1.0]
 
@@ -117,6 +117,32 @@ def test_angle_loss_gradients_are_finite_at_zero_and_right_angles() -> None:
     pred = torch.tensor([Z, [1.0, 0.0, 0.0], _unit(20.0)], dtype=torch.float64, requires_grad=True)
     angle_loss(pred, _vec(Z).expand(3, 3)).backward()
     assert torch.isfinite(pred.grad).all() and pred.grad[2].abs().sum() > 0
+
+
+def test_relative_loss_weights_each_patch_by_what_pca_leaves_to_gain() -> None:
+    """PCA's normal is +z in the patch frame. Prediction 10° off the truth; truth 30° off PCA, floor 10°: the weight
+    is 10² / (30² + 10²) = 0.1. Where PCA is exact the weight is 1 and the loss is the squared angle."""
+    pred, truth = _vec(_unit(40.0)), _vec(_unit(30.0))
+    expected = 0.1 * math.radians(10.0) ** 2
+    assert relative_angle_loss(pred, truth, floor_deg=10.0).item() == pytest.approx(expected, rel=1e-9)
+    assert relative_angle_loss(_vec(_unit(10.0)), _vec(Z), 10.0).item() == pytest.approx(math.radians(10.0) ** 2)
+    flipped = relative_angle_loss(-pred, -truth, floor_deg=10.0).item()
+    assert flipped == pytest.approx(expected, rel=1e-9)
+
+
+def test_relative_loss_refuses_a_floor_that_would_divide_by_zero() -> None:
+    with pytest.raises(ValueError, match="floor"):
+        relative_angle_loss(_vec(Z), _vec(Z), floor_deg=0.0)
+
+
+def test_relative_loss_still_hedges_between_faces_pca_misses_equally() -> None:
+    """An edge whose faces lie ±45° from the PCA normal: both get the same weight, so the bisector is least."""
+    centres = torch.tensor([_unit(45.0), _unit(-45.0)], dtype=torch.float64)
+
+    def loss(deg: float) -> float:
+        return patch_loss("relative", _vec(_unit(deg)).expand(2, 3), centres, centres.unsqueeze(1)).item()
+
+    assert loss(0.0) < min(loss(45.0), loss(-45.0), loss(20.0))
 
 
 def test_an_unknown_loss_name_is_refused_not_silently_replaced() -> None:

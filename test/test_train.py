@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from triplet_normal_ros import train
+from triplet_normal_ros.ablation import _variants
 from triplet_normal_ros.checkpoint import read_metadata
 from triplet_normal_ros.estimator import NormalEstimator
 from triplet_normal_ros.neighbours import NeighbourIndex
@@ -107,12 +108,14 @@ def test_triplet_patches_share_the_anchor_frame():
     assert s.points.norm(dim=-1).max() <= 1.0 + 1e-5
 
 
-def test_cpu_recipe_options_residual_head_and_angle_loss_reach_the_checkpoint(tmp_path):
+def test_cpu_recipe_options_residual_head_and_relative_loss_reach_the_checkpoint(tmp_path):
     run_dir = tmp_path / "residual"
-    train.run(_args("--encoder-epochs 1 --regressor-epochs 3 --residual --loss angle", run_dir))
+    extra = "--encoder-epochs 1 --regressor-epochs 3 --residual --loss relative --relative-floor-deg 7.5"
+    train.run(_args(extra, run_dir))
     meta = read_metadata(run_dir / "model.safetensors")
     assert meta["architecture"]["residual"] is True
-    assert meta["training"]["recipe"]["loss"] == "angle"
+    assert meta["training"]["recipe"]["loss"] == "relative"
+    assert meta["training"]["recipe"]["relative_floor_deg"] == 7.5
     history = json.loads((run_dir / "history.json").read_text())["history"]
     assert all(math.isfinite(h["val"]) and h["val"] < (math.pi / 2) ** 2 for h in history if h["phase"] != "encoder")
     # The head corrects the PCA normal, so on a clean plane it must stay on the plane's normal.
@@ -122,3 +125,25 @@ def test_cpu_recipe_options_residual_head_and_angle_loss_reach_the_checkpoint(tm
     normals, _ = est.estimate(plane, query=np.arange(0, 3000, 30))
     truth = np.array([0.3, 0.1, -1.0]) / np.linalg.norm([0.3, 0.1, -1.0])
     assert np.degrees(np.arccos(np.abs(normals @ truth))).max() < 10.0
+
+
+def test_ablation_rows_are_the_paper_ablations_and_ours_at_one_budget(tmp_path):
+    args = argparse.Namespace(patches_per_shape=7, epochs=2, encoder_from=tmp_path / "encoder.safetensors")
+    rows = {name: (recipe, encoder) for name, recipe, encoder in _variants(args, train.RECIPES["cpu"])}
+    exponents = [r.exponent for name, (r, _) in rows.items() if name.startswith("paper head")]
+    assert exponents == [2, 4, 8, 12]
+    assert all(not r.residual and r.loss == "cos" for name, (r, _) in rows.items() if name.startswith("paper head"))
+    losses = {r.loss for name, (r, _) in rows.items() if name.startswith("residual head")}
+    assert losses == {"cos", "angle", train.RECIPES["cpu"].loss}
+    direct = [(r, e) for name, (r, e) in rows.items() if "direct" in name]
+    assert len(direct) == 1 and not direct[0][0].triplet and direct[0][1] is None
+    for name, (recipe, encoder) in rows.items():
+        assert (recipe.regressor_patches_per_shape, recipe.regressor_epochs, recipe.finetune_epochs) == (7, 2, 0)
+        assert encoder == (None if "direct" in name else args.encoder_from)
+
+
+@pytest.mark.parametrize("floor", ["0", "-5", "nan"])
+def test_a_relative_floor_that_is_not_positive_is_refused_by_the_cli(floor, tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        _args(f"--loss relative --relative-floor-deg {floor}", tmp_path)
+    assert "must be a finite number > 0" in capsys.readouterr().err

@@ -2,8 +2,8 @@
 
 1. cos exponent n in the paper's normal loss (2, 4, 8, 12): phase (b) only, on one frozen triplet encoder, with the
    paper's direct regressor.
-2. Our two deviations (docs/MODEL.md), on the same encoder and budget: the residual head (a correction to the PCA
-   normal) with the cos^8 loss, and with the squared-angle loss (the CPU recipe).
+2. Our deviations (docs/MODEL.md), on the same encoder and budget: the residual head (a correction to the PCA
+   normal) with the cos^8 loss, with the squared angle, and with the squared angle relative to PCA's (the CPU recipe).
 3. With vs without the triplet-trained encoder: the CPU recipe's regressor on the frozen triplet encoder, against the
    whole network trained directly (the paper's "regress the normal directly").
 
@@ -20,7 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .checkpoint import default_checkpoint_path
-from .estimator import NormalEstimator
+from .estimator import POOL_FACTOR, NormalEstimator
 from .metrics import msae
 from .results_doc import update_section
 from .train import RECIPES, Recipe, train
@@ -38,19 +38,23 @@ def _variants(args: argparse.Namespace, base: Recipe) -> list[tuple[str, Recipe,
     rows = [(f"paper head, cos^{n}", dataclasses.replace(paper, exponent=n), args.encoder_from) for n in EXPONENTS]
     rows.append(("residual head, cos^8", dataclasses.replace(paper, residual=True), args.encoder_from))
     ours = dataclasses.replace(base, **budget)
+    rows.append(("residual head, squared angle", dataclasses.replace(ours, loss="angle"), args.encoder_from))
     rows.append((f"residual head, {ours.loss} loss (CPU recipe)", ours, args.encoder_from))
     direct = dataclasses.replace(ours, triplet=False)
     rows.append(("no triplet encoder (direct), CPU recipe head and loss", direct, None))
     return rows
 
 
-def _validation_msae(checkpoint: Path, per_cloud: int, device: str) -> dict[str, float]:
+def _validation_msae(checkpoint: Path | None, per_cloud: int, device: str, pca_k: int = 0) -> dict[str, float]:
     """Mean MSAE over the CAD and the smooth validation clouds (all noise levels), with eval's query points and
-    radius (5 % of each cloud's diagonal)."""
+    radius (5 % of each cloud's diagonal). Without a checkpoint: PCA over up to `pca_k` ball points, the reference."""
     from .cloud_files import bbox_diagonal
     from .evaluate import RADIUS_REL, query_indices, validation_clouds
 
-    est = NormalEstimator("learned", radius=RADIUS_REL, checkpoint=checkpoint, device=device)
+    if checkpoint is None:
+        est = NormalEstimator("pca", radius=RADIUS_REL, k=pca_k, device=device)
+    else:
+        est = NormalEstimator("learned", radius=RADIUS_REL, checkpoint=checkpoint, device=device)
     scores: dict[str, list[float]] = {"cad": [], "smooth": []}
     for cloud in validation_clouds(quick=False):
         query = query_indices(len(cloud.points), per_cloud)
@@ -62,8 +66,9 @@ def _validation_msae(checkpoint: Path, per_cloud: int, device: str) -> dict[str,
 
 def run(args: argparse.Namespace) -> int:
     base = dataclasses.replace(RECIPES["cpu"])
-    results = []
     started = time.time()
+    reference = _validation_msae(None, args.per_cloud, args.device, pca_k=POOL_FACTOR * base.k)
+    results = [("PCA at the same radius (reference)", reference, time.time() - started)]
     for name, recipe, encoder_from in tqdm(_variants(args, base), desc="ablation", unit="variant"):
         run_dir = args.run_dir / "".join(c if c.isalnum() else "_" for c in name.split(" (")[0])
         out = run_dir / "model.safetensors"

@@ -300,7 +300,7 @@ def validation_markdown(results: list[CloudResult], header: str, seconds: float)
             *_TARGETS_HEAD,
             f"| noisy CAD (0.5%, 1%): ours MSAE ≤ 0.25 × PCA 5% | ours / PCA = {cad_ratio:.2f} (mean MSAE ratio) "
             f"| {_met(cad_ratio <= 0.25)} |",
-            f"| smooth shapes: no worse than PCA 5% | ours / PCA = {smooth_ratio:.2f} | {_met(smooth_ratio <= 1.0)} |",
+            f"| smooth shapes: no worse than PCA 5% | ours / PCA = {smooth_ratio:.3f} | {_met(smooth_ratio <= 1.0)} |",
             "",
             "### Averages per kind and noise level",
             "",

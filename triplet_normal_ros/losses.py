@@ -1,9 +1,13 @@
-"""The paper's two training losses, the triplet loss (Eq. 4) and the weighted cos^n normal loss (Eq. 5-6), and the
-squared-angle loss of our CPU recipe (docs/MODEL.md)."""
+"""The paper's two training losses, the triplet loss (Eq. 4) and the weighted cos^n normal loss (Eq. 5-6), and our
+squared-angle losses, absolute and relative to PCA (docs/MODEL.md)."""
 
 import math
 
 import torch
+
+#: Floor (degrees) on PCA's angle in `relative_angle_loss`: below it a patch counts as already solved by PCA.
+RELATIVE_FLOOR_DEG = 5.0
+LOSSES = ("cos", "angle", "relative")
 
 
 def triplet_loss(anchor: torch.Tensor, positive: torch.Tensor, negative: torch.Tensor, margin: float = 0.0):
@@ -36,15 +40,39 @@ def normal_loss(
     return per_patch.mean()
 
 
+def squared_angles(predicted: torch.Tensor, centre_normal: torch.Tensor) -> torch.Tensor:
+    """Per-row squared sign-invariant angle (rad²); atan2 keeps the gradient finite at 0 and 90°."""
+    dot = (predicted * centre_normal).sum(dim=-1).abs()
+    cross = torch.linalg.vector_norm(torch.linalg.cross(predicted, centre_normal, dim=-1), dim=-1)
+    return torch.atan2(cross, dot).pow(2)
+
+
 def angle_loss(predicted: torch.Tensor, centre_normal: torch.Tensor) -> torch.Tensor:
     """Mean squared sign-invariant angle (rad²) to the centre normal: the MSAE that evaluation reports, as a loss.
 
     Unlike cos^8 it does not reward committing to one face when the patch cannot tell which face the centre is on:
-    its minimiser hedges between them in proportion to their odds. atan2 keeps the gradient finite at 0 and 90°.
+    its minimiser hedges between them in proportion to their odds.
     """
-    dot = (predicted * centre_normal).sum(dim=-1).abs()
-    cross = torch.linalg.vector_norm(torch.linalg.cross(predicted, centre_normal, dim=-1), dim=-1)
-    return torch.atan2(cross, dot).pow(2).mean()
+    return squared_angles(predicted, centre_normal).mean()
+
+
+def relative_angle_loss(
+    predicted: torch.Tensor, centre_normal: torch.Tensor, floor_deg: float = RELATIVE_FLOOR_DEG
+) -> torch.Tensor:
+    """Squared angle divided by PCA's own squared angle on the same patch (floored at `floor_deg`), times floor².
+
+    PCA's normal is +z in the patch frame. The plain squared angle spends the regressor on edges, where errors are
+    tens of degrees, and leaves one or two degrees of random correction on smooth patches, where PCA is already close
+    to optimal; the targets are ratios to PCA, so each patch is weighted by how much PCA leaves to gain there. The
+    weight depends on the ground truth and PCA, not on the prediction, so the minimiser still hedges between faces
+    like `angle_loss`. A floor of 0 would divide by zero on exact planes, so it must be positive.
+    """
+    if not floor_deg > 0:
+        raise ValueError(f"the relative loss needs a floor > 0 degrees, got {floor_deg!r}")
+    pca = centre_normal.new_tensor((0.0, 0.0, 1.0)).expand_as(centre_normal)
+    floor = math.radians(floor_deg) ** 2
+    weight = floor / (squared_angles(pca, centre_normal) + floor)
+    return (weight * squared_angles(predicted, centre_normal)).mean()
 
 
 def patch_loss(
@@ -54,10 +82,14 @@ def patch_loss(
     patch_normals: torch.Tensor,
     exponent: int = 8,
     support_deg: float = 15.0,
+    floor_deg: float = RELATIVE_FLOOR_DEG,
 ) -> torch.Tensor:
-    """The recipe's normal loss by name: 'cos' (the paper's Eq. 5-6) or 'angle' (`angle_loss`)."""
+    """The recipe's normal loss by name: 'cos' (the paper's Eq. 5-6), 'angle' (`angle_loss`) or 'relative'
+    (`relative_angle_loss`)."""
     if kind == "angle":
         return angle_loss(predicted, centre_normal)
+    if kind == "relative":
+        return relative_angle_loss(predicted, centre_normal, floor_deg)
     if kind == "cos":
         return normal_loss(predicted, centre_normal, patch_normals, exponent, support_deg)
-    raise ValueError(f"unknown normal loss {kind!r}: expected 'cos' or 'angle'")
+    raise ValueError(f"unknown normal loss {kind!r}: expected one of {LOSSES}")

@@ -8,6 +8,7 @@ produced the shipped checkpoint; docs/TRAINING.md records both.
 import argparse
 import dataclasses
 import json
+import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -18,7 +19,7 @@ import torch
 from tqdm import tqdm
 
 from .checkpoint import default_checkpoint_path, save_checkpoint
-from .losses import patch_loss, triplet_loss
+from .losses import LOSSES, RELATIVE_FLOOR_DEG, patch_loss, triplet_loss
 from .model import DEFAULT_ENCODER, DEFAULT_REGRESSOR, TripletNormalNet
 from .torch_device import resolve_device
 from .train_data import CloudSampler, NormalSet, TripletSet, collect_normal_patches, collect_triplets
@@ -44,6 +45,7 @@ class Recipe:
     radius_rel: float = 0.05
     loss: str = "cos"
     exponent: int = 8
+    relative_floor_deg: float = RELATIVE_FLOOR_DEG
     residual: bool = False
     support_deg: float = 15.0
     triplet: bool = True
@@ -321,7 +323,7 @@ def _recipe_loss(head, data: NormalSet, rows, recipe: Recipe, dev) -> torch.Tens
     """The recipe's normal loss of `head` on `rows` of `data` (training and validation alike)."""
     pred = head(data.patches[rows].to(dev))
     centre, patch = data.centre_normal[rows].to(dev), data.patch_normals[rows].to(dev)
-    return patch_loss(recipe.loss, pred, centre, patch, recipe.exponent, recipe.support_deg)
+    return patch_loss(recipe.loss, pred, centre, patch, recipe.exponent, recipe.support_deg, recipe.relative_floor_deg)
 
 
 def _normal_eval(head, data: NormalSet, recipe, dev) -> float:
@@ -370,21 +372,28 @@ def _load_encoder(model: TripletNormalNet, path: Path) -> None:
 
 
 def _plot_curves(history: list[dict], path: Path) -> None:
+    """One panel per phase that ran (phase (c) is off in both recipes), train and validation loss per epoch."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(14, 3.6))
-    titles = ("(a) triplet loss", "(b) normal loss, frozen encoder", "(c) normal loss, end to end")
-    for ax, phase, title in zip(axes, ("encoder", "regressor", "finetune"), titles, strict=True):
+    titles = {
+        "encoder": "(a) triplet loss",
+        "regressor": "(b) normal loss, frozen encoder",
+        "finetune": "(c) normal loss, end to end",
+    }
+    phases = [p for p in titles if any(h["phase"] == p for h in history)] or ["regressor"]
+    fig, axes = plt.subplots(1, len(phases), figsize=(4.7 * len(phases), 3.6), squeeze=False)
+    for ax, phase in zip(axes[0], phases, strict=True):
         rows = [h for h in history if h["phase"] == phase]
         if rows:
             epochs = [h["epoch"] + 1 for h in rows]
             ax.plot(epochs, [h["train"] for h in rows], "o-", label="train")
             ax.plot(epochs, [h["val"] for h in rows], "s-", label="validation")
             ax.legend()
-        ax.set_title(title)
+            ax.xaxis.get_major_locator().set_params(integer=True)
+        ax.set_title(titles[phase])
         ax.set_xlabel("epoch")
         ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -418,7 +427,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "seed",
     ):
         parser.add_argument("--" + name.replace("_", "-"), type=int)
-    parser.add_argument("--loss", choices=("cos", "angle"), help="normal loss: the paper's cos^n, or squared angle")
+    parser.add_argument(
+        "--loss", choices=LOSSES, help="normal loss: the paper's cos^n, the squared angle, or it relative to PCA's"
+    )
+    parser.add_argument(
+        "--relative-floor-deg", type=_positive_float, help="floor (> 0) on PCA's angle in the relative loss"
+    )
     parser.add_argument(
         "--residual", action=argparse.BooleanOptionalAction, help="regress a correction to the PCA normal"
     )
@@ -429,6 +443,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--finetune-lr", type=float)
     parser.add_argument("--encoder-widths", type=int, nargs="+", dest="encoder")
     parser.add_argument("--regressor-widths", type=int, nargs="+", dest="regressor")
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
 
 
 def recipe_from_args(args: argparse.Namespace) -> Recipe:
