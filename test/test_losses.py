@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -143,6 +144,29 @@ def test_relative_loss_still_hedges_between_faces_pca_misses_equally() -> None:
         return patch_loss("relative", _vec(_unit(deg)).expand(2, 3), centres, centres.unsqueeze(1)).item()
 
     assert loss(0.0) < min(loss(45.0), loss(-45.0), loss(20.0))
+
+
+def test_relative_loss_leans_towards_the_face_pca_already_sits_near() -> None:
+    """Faces at +20° and -70° from the PCA normal with equal odds. The squared angle is least at the midpoint, -25°;
+    the relative loss weights them 5²/(20² + 5²) and 5²/(70² + 5²), so its least is the weighted mean, 12.8°."""
+    centres = torch.tensor([_unit(20.0), _unit(-70.0)], dtype=torch.float64)
+    grid = np.arange(-70.0, 20.01, 0.1)
+
+    def argmin(kind: str) -> float:
+        losses = [patch_loss(kind, _vec(_unit(d)).expand(2, 3), centres, centres.unsqueeze(1)).item() for d in grid]
+        return float(grid[int(np.argmin(losses))])
+
+    w = np.array([25 / (400 + 25), 25 / (4900 + 25)])
+    assert argmin("angle") == pytest.approx(-25.0, abs=0.15)
+    assert argmin("relative") == pytest.approx(float(w @ [20.0, -70.0] / w.sum()), abs=0.15)
+
+
+def test_patch_loss_passes_the_floor_to_the_relative_loss() -> None:
+    pred, truth = _vec(_unit(40.0)), _vec(_unit(30.0))
+    for floor in (2.0, 10.0):
+        relative = patch_loss("relative", pred, truth, truth.unsqueeze(1), floor_deg=floor).item()
+        assert relative == pytest.approx(relative_angle_loss(pred, truth, floor).item(), rel=1e-12)
+        assert relative < angle_loss(pred, truth).item()
 
 
 def test_an_unknown_loss_name_is_refused_not_silently_replaced() -> None:

@@ -45,16 +45,12 @@ def _variants(args: argparse.Namespace, base: Recipe) -> list[tuple[str, Recipe,
     return rows
 
 
-def _validation_msae(checkpoint: Path | None, per_cloud: int, device: str, pca_k: int = 0) -> dict[str, float]:
-    """Mean MSAE over the CAD and the smooth validation clouds (all noise levels), with eval's query points and
-    radius (5 % of each cloud's diagonal). Without a checkpoint: PCA over up to `pca_k` ball points, the reference."""
+def _validation_msae(est: NormalEstimator, per_cloud: int) -> dict[str, float]:
+    """Mean MSAE of `est` over the CAD and the smooth validation clouds (all noise levels), with eval's query points
+    and radius (5 % of each cloud's diagonal)."""
     from .cloud_files import bbox_diagonal
     from .evaluate import RADIUS_REL, query_indices, validation_clouds
 
-    if checkpoint is None:
-        est = NormalEstimator("pca", radius=RADIUS_REL, k=pca_k, device=device)
-    else:
-        est = NormalEstimator("learned", radius=RADIUS_REL, checkpoint=checkpoint, device=device)
     scores: dict[str, list[float]] = {"cad": [], "smooth": []}
     for cloud in validation_clouds(quick=False):
         query = query_indices(len(cloud.points), per_cloud)
@@ -64,17 +60,22 @@ def _validation_msae(checkpoint: Path | None, per_cloud: int, device: str, pca_k
     return {kind: float(np.mean(v)) for kind, v in scores.items()}
 
 
+def reference_estimator(base: Recipe, device: str) -> NormalEstimator:
+    """PCA over the same ball as the learned rows: every point up to the pool the network draws its k from."""
+    return NormalEstimator("pca", radius=1.0, k=POOL_FACTOR * base.k, device=device)
+
+
 def run(args: argparse.Namespace) -> int:
     base = dataclasses.replace(RECIPES["cpu"])
     started = time.time()
-    reference = _validation_msae(None, args.per_cloud, args.device, pca_k=POOL_FACTOR * base.k)
+    reference = _validation_msae(reference_estimator(base, args.device), args.per_cloud)
     results = [("PCA at the same radius (reference)", reference, time.time() - started)]
     for name, recipe, encoder_from in tqdm(_variants(args, base), desc="ablation", unit="variant"):
         run_dir = args.run_dir / "".join(c if c.isalnum() else "_" for c in name.split(" (")[0])
         out = run_dir / "model.safetensors"
         t0 = time.time()
         train(recipe, out, run_dir, args.device, encoder_from=encoder_from)
-        score = _validation_msae(out, args.per_cloud, args.device)
+        score = _validation_msae(NormalEstimator("learned", checkpoint=out, device=args.device), args.per_cloud)
         results.append((name, score, time.time() - t0))
     markdown = _markdown(results, args, time.time() - started)
     print(markdown)

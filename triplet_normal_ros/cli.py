@@ -234,6 +234,7 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
         ("cloud_files", "CloudFileError"),
         ("checkpoint", "CheckpointError"),
         ("estimator", "EstimatorError"),
+        ("train", "TrainingError"),
     ):
         mod = sys.modules.get(f"{__package__}.{module}")
         if mod is not None:

@@ -5,7 +5,7 @@ import math
 
 import torch
 
-#: Floor (degrees) on PCA's angle in `relative_angle_loss`: below it a patch counts as already solved by PCA.
+#: φ in `relative_angle_loss` (degrees): patches where PCA errs by much less than φ all get a weight near 1.
 RELATIVE_FLOOR_DEG = 5.0
 LOSSES = ("cos", "angle", "relative")
 
@@ -59,13 +59,14 @@ def angle_loss(predicted: torch.Tensor, centre_normal: torch.Tensor) -> torch.Te
 def relative_angle_loss(
     predicted: torch.Tensor, centre_normal: torch.Tensor, floor_deg: float = RELATIVE_FLOOR_DEG
 ) -> torch.Tensor:
-    """Squared angle divided by PCA's own squared angle on the same patch (floored at `floor_deg`), times floor².
+    """Squared angle weighted by φ² / (θ_PCA² + φ²), φ = `floor_deg`: divided by PCA's own squared angle, softened.
 
     PCA's normal is +z in the patch frame. The plain squared angle spends the regressor on edges, where errors are
     tens of degrees, and leaves one or two degrees of random correction on smooth patches, where PCA is already close
     to optimal; the targets are ratios to PCA, so each patch is weighted by how much PCA leaves to gain there. The
     weight depends on the ground truth and PCA, not on the prediction, so the minimiser still hedges between faces
-    like `angle_loss`. A floor of 0 would divide by zero on exact planes, so it must be positive.
+    like `angle_loss` where both faces are equally far from PCA, and leans towards the nearer face otherwise. φ = 0
+    would divide by zero on exact planes, so it must be positive.
     """
     if not floor_deg > 0:
         raise ValueError(f"the relative loss needs a floor > 0 degrees, got {floor_deg!r}")

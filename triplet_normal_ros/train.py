@@ -25,6 +25,10 @@ from .torch_device import resolve_device
 from .train_data import CloudSampler, NormalSet, TripletSet, collect_normal_patches, collect_triplets
 
 
+class TrainingError(ValueError):
+    """Training settings that cannot work together; the message says which."""
+
+
 @dataclass
 class Recipe:
     """Everything that decides a training run; stored verbatim in the checkpoint's metadata."""
@@ -56,6 +60,20 @@ class Recipe:
     shapes: list[str] | None = None
     val_shapes: list[str] | None = None
 
+
+#: Recipe fields that decide what a run optimises: a resumed run must keep them (epoch counts may grow).
+RESUME_FIXED = (
+    "k",
+    "loss",
+    "exponent",
+    "relative_floor_deg",
+    "support_deg",
+    "residual",
+    "triplet",
+    "encoder",
+    "regressor",
+    "seed",
+)
 
 RECIPES = {
     # The paper: 8000 patches per shape, 5 + 50 epochs, k = 500. Sized for a GPU.
@@ -95,6 +113,8 @@ def train(
     torch.manual_seed(recipe.seed)
     run_dir.mkdir(parents=True, exist_ok=True)
     state = _load_state(run_dir) if resume else None
+    if state:
+        _check_resumable(state, recipe, run_dir)
     model = TripletNormalNet(tuple(recipe.encoder), tuple(recipe.regressor), recipe.residual).to(dev)
     if state:
         model.load_state_dict(state["model"])
@@ -163,8 +183,8 @@ def _phase_encoder(model, recipe, train_set, val_set, dev, run_dir, state, histo
                 "n": len(data.anchor),
             }
         )
-        _save_state(run_dir, "encoder", epoch, model, opt, sched, history)
-    _save_state(run_dir, "regressor", -1, model, None, None, history)
+        _save_state(run_dir, "encoder", epoch, model, opt, sched, history, recipe)
+    _save_state(run_dir, "regressor", -1, model, None, None, history, recipe)
 
 
 def _phase_regressor(model, recipe, train_set, val_set, dev, run_dir, state, history) -> None:
@@ -255,7 +275,7 @@ def _fit_normals(
                 "n": len(data.patches),
             }
         )
-        _save_state(run_dir, phase, epoch, model, opt, sched, history)
+        _save_state(run_dir, phase, epoch, model, opt, sched, history, recipe)
     if best[1] is not None:  # ship the best validation epoch, not the last
         model.load_state_dict(best[1])
 
@@ -350,8 +370,9 @@ def _optimiser(params, recipe: Recipe, state: dict | None):
     return opt, sched
 
 
-def _save_state(run_dir: Path, phase: str, epoch: int, model, opt, sched, history) -> None:
+def _save_state(run_dir: Path, phase: str, epoch: int, model, opt, sched, history, recipe: Recipe) -> None:
     state = {
+        "recipe": dataclasses.asdict(recipe),
         "phase": phase,
         "epoch": epoch,
         "model": model.state_dict(),
@@ -367,6 +388,19 @@ def _save_state(run_dir: Path, phase: str, epoch: int, model, opt, sched, histor
 def _load_state(run_dir: Path) -> dict | None:
     path = run_dir / "state.pt"
     return torch.load(path, weights_only=True) if path.is_file() else None  # weights_only: never unpickle code
+
+
+def _check_resumable(state: dict, recipe: Recipe, run_dir: Path) -> None:
+    """Refuse to resume under a recipe that optimises something else: best-epoch and plateau decisions would compare
+    losses on different scales."""
+    saved = state.get("recipe")
+    if saved is None:
+        raise TrainingError(f"{run_dir}/state.pt does not record its recipe (older version); start a new --run-dir")
+    changed = [
+        f"{f}: {saved.get(f)!r} -> {getattr(recipe, f)!r}" for f in RESUME_FIXED if saved.get(f) != getattr(recipe, f)
+    ]
+    if changed:
+        raise TrainingError(f"cannot resume {run_dir} with a different recipe ({'; '.join(changed)})")
 
 
 def _load_encoder(model: TripletNormalNet, path: Path) -> None:
@@ -463,7 +497,10 @@ def recipe_from_args(args: argparse.Namespace) -> Recipe:
     }
     if args.no_triplet:
         overrides["triplet"] = False
-    return dataclasses.replace(RECIPES[args.recipe], **overrides)
+    recipe = dataclasses.replace(RECIPES[args.recipe], **overrides)
+    if args.relative_floor_deg is not None and recipe.loss != "relative":
+        raise TrainingError(f"--relative-floor-deg only applies to --loss relative (this run uses {recipe.loss!r})")
+    return recipe
 
 
 def run(args: argparse.Namespace) -> int:
