@@ -62,7 +62,7 @@ def _validation_msae(est: NormalEstimator, per_cloud: int) -> dict[str, float]:
 
 def reference_estimator(base: Recipe, device: str) -> NormalEstimator:
     """PCA over the same ball as the learned rows: every point up to the pool the network draws its k from."""
-    return NormalEstimator("pca", radius=1.0, k=POOL_FACTOR * base.k, device=device)
+    return NormalEstimator("pca", k=POOL_FACTOR * base.k, device=device)
 
 
 def run(args: argparse.Namespace) -> int:
