@@ -33,7 +33,8 @@ def _args(extra: str, run_dir) -> argparse.Namespace:
 @pytest.fixture(scope="module")
 def toy_run(tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("train")
-    assert train.run(_args("--encoder-epochs 1 --regressor-epochs 6 --finetune-epochs 2 --lr 0.05", run_dir)) == 0
+    extra = "--encoder-epochs 1 --regressor-epochs 6 --finetune-epochs 2 --finetune-patches-per-shape 64 --lr 0.05"
+    assert train.run(_args(extra, run_dir)) == 0
     return run_dir
 
 
@@ -50,6 +51,9 @@ def test_finetune_phase_runs_end_to_end(toy_run):
     best_b = min(h["val"] for h in history if h["phase"] == "regressor")
     summary = json.loads((toy_run / "history.json").read_text())
     assert summary["final_val_normal_loss"] <= best_b  # the shipped weights are the best of (b) and (c)
+    clouds = 2 * 6  # two shapes, clean + five noise levels
+    assert {h["n"] for h in history if h["phase"] == "finetune"} == {clouds * 64}  # its own count, fresh per epoch
+    assert {h["n"] for h in history if h["phase"] == "regressor"} == {clouds * 256}
 
 
 def test_checkpoint_records_recipe_and_loads(toy_run):

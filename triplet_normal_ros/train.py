@@ -39,6 +39,7 @@ class Recipe:
     regressor_epochs: int = 40
     regressor_patches_per_shape: int = 800
     finetune_epochs: int = 0
+    finetune_patches_per_shape: int | None = None  # fresh patches per cloud per phase-(c) epoch; None: as phase (b)
     finetune_lr: float = 0.001
     finetune_freeze_bn: bool = True
     batch_size: int = 64
@@ -228,9 +229,8 @@ def _phase_finetune(model, recipe, train_set, val_set, dev, run_dir, state, hist
     opt, sched = _optimiser(list(model.parameters()), dataclasses.replace(recipe, lr=recipe.finetune_lr), resumed)
 
     def train(epoch: int) -> NormalSet:  # fresh patches every epoch, so the whole network cannot memorise them
-        return collect_normal_patches(
-            train_set, recipe.regressor_patches_per_shape, recipe.seed + 40_000 + epoch, f"patches c{epoch}"
-        )
+        per_cloud = recipe.finetune_patches_per_shape or recipe.regressor_patches_per_shape
+        return collect_normal_patches(train_set, per_cloud, recipe.seed + 40_000 + epoch, f"patches c{epoch}")
 
     val = collect_normal_patches(val_set, recipe.val_patches_per_cloud, recipe.seed + 30_000, "val patches")
     end_to_end = dataclasses.replace(recipe, triplet=False)  # batch size of the end-to-end path
@@ -459,6 +459,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "regressor_epochs",
         "regressor_patches_per_shape",
         "finetune_epochs",
+        "finetune_patches_per_shape",
         "batch_size",
         "n_points",
         "exponent",
