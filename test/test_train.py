@@ -52,7 +52,7 @@ def test_finetune_phase_runs_end_to_end(toy_run):
     summary = json.loads((toy_run / "history.json").read_text())
     assert summary["final_val_normal_loss"] <= best_b  # the shipped weights are the best of (b) and (c)
     clouds = 2 * 6  # two shapes, clean + five noise levels
-    assert {h["n"] for h in history if h["phase"] == "finetune"} == {clouds * 64}  # its own count, fresh per epoch
+    assert {h["n"] for h in history if h["phase"] == "finetune"} == {clouds * 64}  # phase (c)'s own count
     assert {h["n"] for h in history if h["phase"] == "regressor"} == {clouds * 256}
 
 
@@ -151,6 +151,14 @@ def test_a_relative_floor_that_is_not_positive_is_refused_by_the_cli(floor, tmp_
     with pytest.raises(SystemExit):
         _args(f"--loss relative --relative-floor-deg {floor}", tmp_path)
     assert "must be a finite number > 0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "flag", ["--finetune-patches-per-shape 0", "--regressor-patches-per-shape -3", "--k 0", "--regressor-epochs -1"]
+)
+def test_a_size_or_epoch_count_that_cannot_work_is_refused(flag, tmp_path):
+    with pytest.raises(train.TrainingError, match=f"{flag.split()[0]} must be >= "):
+        train.recipe_from_args(_args(flag, tmp_path))
 
 
 def test_a_relative_floor_without_the_relative_loss_is_refused(tmp_path):

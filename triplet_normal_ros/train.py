@@ -229,7 +229,8 @@ def _phase_finetune(model, recipe, train_set, val_set, dev, run_dir, state, hist
     opt, sched = _optimiser(list(model.parameters()), dataclasses.replace(recipe, lr=recipe.finetune_lr), resumed)
 
     def train(epoch: int) -> NormalSet:  # fresh patches every epoch, so the whole network cannot memorise them
-        per_cloud = recipe.finetune_patches_per_shape or recipe.regressor_patches_per_shape
+        per_cloud = recipe.finetune_patches_per_shape
+        per_cloud = recipe.regressor_patches_per_shape if per_cloud is None else per_cloud
         return collect_normal_patches(train_set, per_cloud, recipe.seed + 40_000 + epoch, f"patches c{epoch}")
 
     val = collect_normal_patches(val_set, recipe.val_patches_per_cloud, recipe.seed + 30_000, "val patches")
@@ -501,7 +502,30 @@ def recipe_from_args(args: argparse.Namespace) -> Recipe:
     recipe = dataclasses.replace(RECIPES[args.recipe], **overrides)
     if args.relative_floor_deg is not None and recipe.loss != "relative":
         raise TrainingError(f"--relative-floor-deg only applies to --loss relative (this run uses {recipe.loss!r})")
+    _check_counts(recipe)
     return recipe
+
+
+#: Recipe sizes that must be at least 1, and epoch counts that must be at least 0 (a phase may be skipped).
+COUNTS = (
+    "k",
+    "patches_per_shape",
+    "regressor_patches_per_shape",
+    "finetune_patches_per_shape",
+    "batch_size",
+    "n_points",
+    "val_patches_per_cloud",
+)
+EPOCHS = ("encoder_epochs", "regressor_epochs", "finetune_epochs")
+
+
+def _check_counts(recipe: Recipe) -> None:
+    """One clear line for a size or epoch count that cannot work, instead of a failure deep inside numpy."""
+    for names, least in ((COUNTS, 1), (EPOCHS, 0)):
+        for name in names:
+            value = getattr(recipe, name)
+            if value is not None and value < least:
+                raise TrainingError(f"--{name.replace('_', '-')} must be >= {least}, got {value}")
 
 
 def run(args: argparse.Namespace) -> int:
