@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from triplet_normal_ros.metrics import angles_deg, angles_rad, invalid_count, msae, rmse_deg
+from triplet_normal_ros.metrics import angles_deg, angles_rad, invalid_count, msae, ratio_interval, rmse_deg
 
 
 def test_identical_and_flipped_normals_have_zero_error() -> None:
@@ -39,3 +39,28 @@ def test_nan_prediction_counts_as_ninety_degrees() -> None:
 def test_shape_mismatch_is_an_error() -> None:
     with pytest.raises(ValueError, match="same shape"):
         msae(np.zeros((2, 3)), np.zeros((3, 3)))
+
+
+def test_ratio_interval_is_paired_and_exact_where_the_ratio_is_fixed() -> None:
+    rng = np.random.default_rng(0)
+    pca = [rng.exponential(size=500) ** 3 for _ in range(3)]  # heavy-tailed, like squared angles near edges
+    assert ratio_interval([(b, b) for b in pca]) == pytest.approx((1.0, 1.0))
+    # Every point 1 % worse: a paired bootstrap sees exactly 1.01; resampling the two methods apart would not.
+    assert ratio_interval([(1.01 * b, b) for b in pca]) == pytest.approx((1.01, 1.01))
+
+
+def test_ratio_interval_covers_the_truth_and_narrows_with_more_points() -> None:
+    rng = np.random.default_rng(1)
+
+    def clouds(n: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        return [(rng.exponential(1.0, n), rng.exponential(1.0, n)) for _ in range(4)]
+
+    lo, hi = ratio_interval(clouds(5000))
+    assert lo < 1.0 < hi and hi - lo < 0.05
+    lo_small, hi_small = ratio_interval(clouds(200))
+    assert hi_small - lo_small > 2 * (hi - lo)
+
+
+def test_ratio_interval_refuses_unpaired_arrays() -> None:
+    with pytest.raises(ValueError, match="equal, non-empty 1-D"):
+        ratio_interval([(np.ones(3), np.ones(4))])
