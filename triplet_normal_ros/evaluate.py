@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .cloud_files import CloudFileError, bbox_diagonal, read_normals_file, read_points
-from .metrics import angles_deg, angles_rad, invalid_count, msae, ratio_interval, rmse_deg
+from .metrics import angles_rad, invalid_count, msae, ratio_interval, rmse_deg
 
 RADIUS_REL = 0.05
 PCA_GRID = (0.01, 0.02, 0.03, 0.04, 0.05, 0.07, 0.10)
@@ -31,7 +31,7 @@ QUICK_PCPNET_NOISE = (0.0, 0.012)
 
 @dataclass
 class CloudResult:
-    """Scores of the three contenders on one cloud; `errors` keeps per-point angles for the heat map."""
+    """Scores of the three contenders on one cloud, and per-point angles for the heat map and the intervals."""
 
     shape: str
     kind: str
@@ -40,8 +40,8 @@ class CloudResult:
     ours: tuple[float, float, int]  # MSAE, RMSE°, NaN count
     pca: tuple[float, float, int]
     best: tuple[float, float, float]  # MSAE, RMSE°, radius (fraction of the diagonal)
-    errors: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
-    squared: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)  # ours, PCA 5%: rad² per point
+    angles: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)  # ours, PCA 5%: rad per point
+    points: np.ndarray | None = field(default=None, repr=False)  # the query points, kept where a heat map may be drawn
 
 
 class Contenders:
@@ -54,9 +54,9 @@ class Contenders:
         self.pca = NormalEstimator("pca", radius=RADIUS_REL, device=device)
         self.pca_pool = POOL_FACTOR * self.ours.k
 
-    def score(self, points: np.ndarray, gt: np.ndarray, query: np.ndarray, diag: float, keep_errors: bool) -> tuple:
-        """((ours, pca@5%, best pca) scores, heat-map errors, per-point squared angles of ours and PCA 5%) on one
-        cloud; `gt` is (M, 3) at `query`."""
+    def score(self, points: np.ndarray, gt: np.ndarray, query: np.ndarray, diag: float) -> tuple:
+        """(ours, pca@5%, best pca) scores and the per-point angles of ours and PCA 5% on one cloud; `gt` is (M, 3)
+        at `query`."""
         self.ours.radius = RADIUS_REL * diag
         ours, _ = self.ours.estimate(points, query)
         from scipy.spatial import cKDTree
@@ -65,13 +65,12 @@ class Contenders:
         grid = {r: self._pca(points, query, r * diag, tree) for r in PCA_GRID}
         best = min(grid, key=lambda r: msae(grid[r], gt))
         pca = grid[RADIUS_REL]
-        errors = {"PCA (r = 5%)": angles_deg(pca, gt), "ours (r = 5%)": angles_deg(ours, gt)} if keep_errors else {}
+        angles = (angles_rad(ours, gt), angles_rad(pca, gt))
         return (
-            _scores(ours, gt),
-            _scores(pca, gt),
+            _scores(ours, angles[0]),
+            _scores(pca, angles[1]),
             (msae(grid[best], gt), rmse_deg(grid[best], gt), best),
-            errors,
-            (angles_rad(ours, gt) ** 2, angles_rad(pca, gt) ** 2),
+            angles,
         )
 
     def _pca(self, points: np.ndarray, query: np.ndarray, radius: float, tree) -> np.ndarray:
@@ -81,8 +80,10 @@ class Contenders:
         return self.pca.estimate(points, query)[0]
 
 
-def _scores(pred: np.ndarray, gt: np.ndarray) -> tuple[float, float, int]:
-    return msae(pred, gt), rmse_deg(pred, gt), invalid_count(pred)
+def _scores(pred: np.ndarray, angles: np.ndarray) -> tuple[float, float, int]:
+    """MSAE, RMSE° and NaN count from per-point angles (`metrics.angles_rad`), computed once per method."""
+    mse = float(np.mean(angles**2))
+    return mse, float(np.degrees(np.sqrt(mse))), invalid_count(pred)
 
 
 def query_indices(n: int, count: int) -> np.ndarray:
@@ -138,8 +139,8 @@ def evaluate_validation(contenders: Contenders, per_cloud: int, quick: bool) -> 
     for cloud in tqdm(validation_clouds(quick), desc="eval val", unit="cloud", disable=None, file=sys.stderr):
         points = np.asarray(cloud.points, dtype=np.float64)
         query = query_indices(len(points), per_cloud)
-        ours, pca, best, _, sq = contenders.score(points, cloud.normals[query], query, bbox_diagonal(points), False)
-        results.append(CloudResult(cloud.name, cloud.kind, cloud.noise, len(query), ours, pca, best, squared=sq))
+        ours, pca, best, angles = contenders.score(points, cloud.normals[query], query, bbox_diagonal(points))
+        results.append(CloudResult(cloud.name, cloud.kind, cloud.noise, len(query), ours, pca, best, angles))
     return results
 
 
@@ -154,10 +155,9 @@ def evaluate_pcpnet(contenders: Contenders, directory: Path, per_cloud: int, qui
         diag = bbox_diagonal(clean)
         points = pcpnet_noisy(clean, level, diag)
         query = query_indices(len(points), per_cloud)
-        ours, pca, best, errors, sq = contenders.score(points, normals[query], query, diag, True)
+        ours, pca, best, angles = contenders.score(points, normals[query], query, diag)
         kind = "cad" if name in ("cube100k", "fandisk100k") else "smooth"
-        results.append(CloudResult(name, kind, level, len(query), ours, pca, best, errors, sq))
-        results[-1].errors["points"] = points[query]
+        results.append(CloudResult(name, kind, level, len(query), ours, pca, best, angles, points[query]))
     return results
 
 
@@ -212,9 +212,10 @@ def _heatmap(results: list[CloudResult], path: Path) -> tuple[Path, CloudResult]
 
     chosen = next((r for r in results if (r.shape, r.noise) == HEATMAP), None)
     chosen = chosen or max((r for r in results if r.shape == results[0].shape), key=lambda r: r.noise)
-    errors = {k: v for k, v in chosen.errors.items() if k != "points"}
+    ours, pca = (np.degrees(a) for a in chosen.angles)
+    errors = {"PCA (r = 5%)": pca, "ours (r = 5%)": ours}
     title = f"{chosen.shape}, noise {chosen.noise * 100:g}% of the diagonal: angular error per query point"
-    return error_heatmap(path, chosen.errors["points"], errors, title, vmax=60.0), chosen
+    return error_heatmap(path, chosen.points, errors, title, vmax=60.0), chosen
 
 
 # ---------------------------------------------------------------- markdown
@@ -289,8 +290,8 @@ def _mean(results: list[CloudResult], which: str, metric: int, keep) -> float:
 
 
 def _interval(results: list[CloudResult], keep, digits: int) -> str:
-    """', 95% CI lo-hi' for the ours / PCA MSAE ratio over the kept clouds, or '' without per-point errors."""
-    pairs = [r.squared for r in results if keep(r) and r.squared is not None]
+    """', 95% CI lo-hi' for the ours / PCA MSAE ratio over the kept clouds, or '' without per-point angles."""
+    pairs = [(ours**2, pca**2) for ours, pca in (r.angles for r in results if keep(r) and r.angles is not None)]
     if not pairs:
         return ""
     lo, hi = ratio_interval(pairs)
