@@ -33,7 +33,7 @@ WS := out/ws
 demo: venv
 	$(VENV)/bin/colcon --log-base $(WS)/log build --base-paths . \
 		--build-base $(WS)/build --install-base $(WS)/install
-	$(PY) -m triplet_normal_ros.demo --prefix $(WS)/install/triplet_normal_ros --out out
+	$(PY) -m triplet_normal_ros.ros.demo --prefix $(WS)/install/triplet_normal_ros --out out
 
 lint: venv
 	$(VENV)/bin/ruff check --config .ci/ruff.toml triplet_normal_ros test
@@ -47,10 +47,10 @@ train: venv
 	$(VENV)/bin/triplet-normal train --recipe cpu --run-dir out/train_cpu
 
 eval: venv
-	$(VENV)/bin/triplet-normal eval
+	$(VENV)/bin/triplet-normal eval --pcpnet-dir ../shared/data/pcpnet --out docs/RESULTS.md
 
 bench: venv
-	$(VENV)/bin/triplet-normal bench
+	$(VENV)/bin/triplet-normal bench --out docs/RESULTS.md
 
 clean:
 	rm -rf $(VENV) build install log out .pytest_cache .hypothesis .ruff_cache

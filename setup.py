@@ -27,11 +27,10 @@ setup(
     maintainer_email="maintainers@triplet-normal-ros.invalid",
     description="Learned (triplet) and PCA surface normals for sensor_msgs/PointCloud2.",
     license="BSD-3-Clause",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
-            f"node = {PACKAGE}.node:main",
-            f"triplet-normal = {PACKAGE}.cli:main",
+            f"node = {PACKAGE}.ros.node:main",
+            f"triplet-normal = {PACKAGE}.cli.main:main",
         ],
     },
 )

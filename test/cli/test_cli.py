@@ -1,0 +1,192 @@
+"""`triplet-normal` end to end: the installed console script in a subprocess, plus in-process error paths."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from triplet_normal_ros.cli.main import main
+from triplet_normal_ros.evaluation.metrics import rmse_deg
+from triplet_normal_ros.evaluation.plots import normals_scatter
+from triplet_normal_ros.evaluation.report import read_section, update_section
+from triplet_normal_ros.io.cloud_files import read_cloud, read_normals_file, write_points
+
+SCRIPT = Path(sys.executable).with_name("triplet-normal")
+
+
+def run_cli(*args: str | Path, cwd: Path | None = None, env: dict | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(SCRIPT), *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=cwd,
+        env={**os.environ, **(env or {})},
+    )
+
+
+def sphere(n: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    normals = np.random.default_rng(seed).normal(size=(n, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return 2.0 * normals + np.array([5.0, -1.0, 3.0]), normals
+
+
+def noisy_plane(n: int = 500, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-1, 1, (n, 2)), rng.normal(scale=0.005, size=n)])
+
+
+def assert_one_error_line(stderr: str) -> None:
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("triplet-normal: error: "), stderr
+    assert "Traceback" not in stderr
+
+
+@pytest.fixture
+def sphere_xyz(tmp_path: Path) -> tuple[Path, np.ndarray, np.ndarray]:
+    points, normals = sphere()
+    write_points(tmp_path / "ball.xyz", points)
+    return tmp_path / "ball.xyz", points, normals
+
+
+def test_estimate_pca_subprocess_default_out_indices_and_viewpoint(tmp_path: Path, sphere_xyz) -> None:
+    path, points, gt = sphere_xyz
+    done = run_cli("estimate", path, "--method", "pca", "--radius-rel", "0.3")
+    assert done.returncode == 0, done.stderr
+    assert "400 points, 400 estimated, 400 valid" in done.stdout
+    normals = read_normals_file(tmp_path / "ball.normals")  # default OUT: IN with suffix .normals
+    assert rmse_deg(normals, gt) < 10.0
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
+
+    again = run_cli("estimate", path, "--method", "pca")
+    assert again.returncode == 2
+    assert_one_error_line(again.stderr)
+    assert "already exists" in again.stderr
+
+    (tmp_path / "q.pidx").write_text("7\n3\n399\n0\n")
+    done = run_cli(
+        "estimate", path, "--method", "pca", "--radius-rel", "0.3", "--indices", tmp_path / "q.pidx",
+        "--viewpoint", "5", "-1", "3", "--out", tmp_path / "q.ply",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    out = read_cloud(tmp_path / "q.ply")
+    np.testing.assert_allclose(out.points, points[[7, 3, 399, 0]], atol=1e-6)
+    np.testing.assert_allclose(np.abs(out.normals), np.abs(normals[[7, 3, 399, 0]]), atol=1e-5)
+    inward = np.einsum("ij,ij->i", out.normals, out.points - [5, -1, 3])
+    assert (inward < 0).all()  # the viewpoint is the centre, so every normal faces it
+
+
+def test_estimate_organized_pcd_with_nan_rows(tmp_path: Path, capsys) -> None:
+    """A depth frame: organized 20 x 25, NaN where the sensor saw nothing (first pixel included)."""
+    from pypcd4 import Encoding, PointCloud
+
+    u, v = np.meshgrid(np.linspace(-1, 1, 25), np.linspace(-1, 1, 20))
+    points = np.column_stack([u.ravel(), v.ravel(), np.full(u.size, 2.0)]).astype(np.float32)
+    points[[0, 1, 260]] = np.nan
+    cloud = PointCloud.from_points(points, ("x", "y", "z"), [np.float32] * 3)
+    cloud.metadata.height, cloud.metadata.width = 20, 25
+    cloud.save(tmp_path / "frame.pcd", encoding=Encoding.BINARY_COMPRESSED)
+    args = ["estimate", tmp_path / "frame.pcd", "--method", "pca", "--radius", "0.3", "--viewpoint", "0", "0", "0"]
+    assert main([*map(str, args), "--out", str(tmp_path / "n.pcd")]) == 0, capsys.readouterr().err
+    out = read_cloud(tmp_path / "n.pcd")
+    assert (out.height, out.width) == (20, 25)
+    assert np.isnan(out.normals[[0, 1, 260]]).all()
+    finite = np.delete(out.normals, [0, 1, 260], axis=0)
+    np.testing.assert_allclose(finite, np.tile([0, 0, -1.0], (len(finite), 1)), atol=1e-4)  # facing the camera
+
+
+def test_estimate_learned_with_shipped_checkpoint(tmp_path: Path) -> None:
+    write_points(tmp_path / "plane.npy", noisy_plane())
+    done = run_cli("estimate", tmp_path / "plane.npy", "--out", tmp_path / "plane.pcd", "--radius", "0.3")
+    assert done.returncode == 0, done.stderr
+    out = read_cloud(tmp_path / "plane.pcd")
+    assert out.normals.shape == (500, 3)
+    assert rmse_deg(out.normals, np.tile([0, 0, 1.0], (500, 1))) < 10.0
+
+
+@pytest.mark.parametrize(
+    ("make", "args", "status", "message"),
+    [
+        (None, ["estimate", "{d}/missing.xyz"], 1, "no such file"),
+        ("bad.obj", ["estimate", "{d}/bad.obj"], 1, "unknown point-cloud suffix"),
+        ("few.xyz", ["estimate", "{d}/few.xyz", "--method", "pca"], 1, "only 2 finite point"),
+        (
+            "ok.xyz",
+            ["estimate", "{d}/ok.xyz", "--checkpoint", "{d}/none.safetensors", "--out", "{d}/o.npy"],
+            1,
+            "not found",
+        ),
+        ("ok.xyz", ["estimate", "{d}/ok.xyz", "--out", "{d}/o.txt"], 2, "unknown output suffix"),
+        ("ok.xyz", ["estimate", "{d}/ok.xyz", "--radius", "1", "--radius-rel", "0.1"], 2, "not allowed with"),
+        ("ok.xyz", ["estimate", "{d}/ok.xyz", "--k", "2"], 2, "--k must be >= 3"),
+        ("ok.xyz", ["estimate", "{d}/ok.xyz", "--device", "gpu7"], 2, "device must be"),
+        (None, ["frobnicate"], 2, "invalid choice"),
+    ],
+)
+def test_errors_are_one_line_with_status(tmp_path: Path, capsys, make, args, status, message) -> None:
+    if make == "few.xyz":
+        (tmp_path / make).write_text("0 0 0\n1 1 1\n")
+    elif make == "ok.xyz":
+        write_points(tmp_path / make, sphere(50)[0])
+    elif make:
+        (tmp_path / make).write_text("v 0 0 0\n")
+    assert main([a.format(d=tmp_path) for a in args]) == status
+    err = capsys.readouterr().err
+    assert_one_error_line(err)
+    assert message in err
+
+
+def test_missing_checkpoint_subprocess_exits_nonzero_with_one_line(tmp_path: Path) -> None:
+    write_points(tmp_path / "ok.xyz", sphere(50)[0])
+    done = run_cli("estimate", tmp_path / "ok.xyz", "--checkpoint", tmp_path / "nope.safetensors")
+    assert done.returncode == 1
+    assert_one_error_line(done.stderr)
+    assert not (tmp_path / "ok.normals").exists()
+
+
+def test_update_section_replaces_only_its_block(tmp_path: Path) -> None:
+    doc = tmp_path / "RESULTS.md"
+    update_section(doc, "bench", "old bench")
+    update_section(doc, "train", "training log")
+    update_section(doc, "bench", "new bench\n\n| a |")
+    text = doc.read_text()
+    assert "old bench" not in text and text.count("<!-- BEGIN bench -->") == 1
+    assert read_section(doc, "bench") == "new bench\n\n| a |"
+    assert read_section(doc, "train") == "training log"
+    assert text.index("BEGIN bench") < text.index("BEGIN train")  # replaced in place, not re-appended
+
+
+def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
+    pcpnet = tmp_path / "pcpnet"
+    pcpnet.mkdir()
+    points, normals = sphere(3000, seed=1)
+    np.savetxt(pcpnet / "fandisk100k.xyz", points, fmt="%.6f")
+    np.savetxt(pcpnet / "fandisk100k.normals", normals, fmt="%.6f")
+    doc = tmp_path / "docs" / "RESULTS.md"
+    update_section(doc, "bench", "kept")
+    done = run_cli(
+        "eval", "--quick", "--pcpnet-dir", pcpnet, "--out", doc, env={"TRIPLET_NORMAL_CACHE": str(tmp_path / "cache")}
+    )
+    assert done.returncode == 0, done.stderr
+    val, pcp = read_section(doc, "eval-val"), read_section(doc, "eval-pcpnet")
+    assert "| v_notch_block | cad | 1 |" in val and "smooth shapes: no worse than PCA 5%" in val
+    assert val.count("95% CI ") == 2  # both target ratios carry their bootstrap interval
+    assert "| fandisk100k | cad | 1.2 |" in pcp and "images/heatmap_fandisk.png" in pcp
+    assert read_section(doc, "bench") == "kept"
+    assert (doc.parent / "images" / "heatmap_fandisk.png").stat().st_size > 10_000
+
+
+def test_eval_without_pcpnet_dir_fails_before_working(tmp_path: Path) -> None:
+    done = run_cli("eval", "--pcpnet-dir", tmp_path / "absent", "--out", tmp_path / "R.md")
+    assert done.returncode == 1
+    assert_one_error_line(done.stderr)
+    assert not (tmp_path / "R.md").exists()
+
+
+def test_normals_scatter_writes_png(tmp_path: Path) -> None:
+    points, normals = sphere(300)
+    normals[0] = np.nan
+    assert normals_scatter(tmp_path / "n.png", points, normals).stat().st_size > 5_000

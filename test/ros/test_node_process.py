@@ -1,0 +1,311 @@
+"""The real thing across processes: colcon-build the package, run the installed ``node``, talk to it over DDS.
+
+The node runs in its own process; this test process publishes real Kinect frames and receives the answers through
+its own rclpy context (``CloudClient``). Full frames use ``pca`` (fast); ``learned`` runs on a small crop.
+"""
+
+from __future__ import annotations
+
+import array
+import os
+import re
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import PACKAGE, NodeProcess, installed_env, params_yaml, site_packages
+from scipy.spatial import cKDTree
+from sensor_msgs.msg import PointCloud2, PointField
+
+from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.orientation import orient_towards_viewpoint
+from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, make_cloud, read_field, read_xyz
+from triplet_normal_ros.ros.replay import CloudClient, Frame, load_frame
+
+IN, OUT = "/tn_test/points", "/tn_test/normals"
+RADIUS, K = 0.03, 24
+PCA_PARAMS = {"method": "pca", "radius": RADIUS, "k": K, "stats_period": 1.0}
+SHUTDOWN_S = 2.0
+
+
+# -- fixtures -------------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def pca_node(install_prefix: Path, ros_env: dict[str, str], tmp_path_factory) -> Iterator[NodeProcess]:
+    """One node for the module: pca, a reliable input override (full frames are ~5 MB; see README, QoS)."""
+    path = params_yaml(tmp_path_factory.mktemp("node") / "params.yaml", PCA_PARAMS, reliable_topics=(IN,))
+    env = installed_env(install_prefix, ros_env)
+    node = NodeProcess(install_prefix, env, path, {"input": IN, "output": OUT}, path.with_suffix(".log"))
+    assert node.wait_for_log("ready:", 60), node.log
+    yield node
+    node.close()
+
+
+@pytest.fixture(scope="module")
+def client(pca_node: NodeProcess) -> Iterator[CloudClient]:
+    with CloudClient(IN, OUT) as c:
+        assert c.wait_for_node(30), "the node's topics and parameter services never matched"
+        yield c
+
+
+@pytest.fixture(scope="module")
+def frame() -> Frame:
+    return load_frame("table_scene_mug")
+
+
+def small_cloud(client: CloudClient, frame: Frame) -> PointCloud2:
+    return frame.cropped(200, 300, 20, 20).to_cloud(client.header())
+
+
+def normals_of(msg: PointCloud2) -> np.ndarray:
+    return np.stack([read_field(msg, f) for f in NORMAL_FIELDS[:3]], axis=1)
+
+
+def expected_invalid(points: np.ndarray, radius: float) -> np.ndarray:
+    """PCL's rule: non-finite xyz, or fewer than 3 points (itself included) strictly within ``radius``."""
+    finite = np.isfinite(points).all(axis=1)
+    invalid = ~finite
+    dist, _ = cKDTree(points[finite]).query(points[finite], k=3, distance_upper_bound=radius)
+    invalid[np.flatnonzero(finite)] = ~np.isfinite(dist[:, 2])
+    return invalid
+
+
+# -- packaging ------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("fixture", ["install_prefix", "symlink_install_prefix"])
+def test_colcon_build_installs_an_executable_node(fixture: str, request: pytest.FixtureRequest) -> None:
+    prefix: Path = request.getfixturevalue(fixture)
+    node = prefix / "lib" / PACKAGE / "node"
+    assert node.is_file() and os.access(node, os.X_OK)
+    assert (prefix / "lib" / PACKAGE / "triplet-normal").is_file()
+    assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / PACKAGE).is_file()
+    assert (prefix / "share" / PACKAGE / "package.xml").is_file()
+    assert (prefix / "share" / PACKAGE / "config" / "params.yaml").is_file()
+
+
+def test_the_installed_copy_is_what_runs(install_prefix: Path, ros_env: dict[str, str], tmp_path: Path) -> None:
+    """With the install on PYTHONPATH (as setup.bash does), its copy wins over the venv's editable checkout."""
+    code = "import triplet_normal_ros.ros.replay as r; print(r.__file__); print(r.SAMPLE_DIR)"
+    env = installed_env(install_prefix, ros_env)
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=tmp_path)
+    module, sample_dir = out.stdout.split()
+    assert Path(module).is_relative_to(site_packages(install_prefix))
+    assert sorted(p.name for p in Path(sample_dir).glob("*.npz")) == [
+        "frame_20121214T142255.npz",
+        "table_scene_mug.npz",
+    ]
+
+
+# -- a real frame ---------------------------------------------------------------------------------------------------
+
+
+def test_full_kinect_frame(client: CloudClient, frame: Frame) -> None:
+    sent = frame.to_cloud(client.header())
+    out = client.request(sent, timeout=120)
+    assert out is not None, "no answer to a full 640x480 frame"
+    assert (out.height, out.width) == (480, 640)
+    assert out.header == sent.header
+    assert [f.name for f in out.fields] == ["x", "y", "z", "rgb", *NORMAL_FIELDS]
+    assert all(f.datatype == PointField.FLOAT32 and f.count == 1 for f in out.fields)
+    assert not out.is_bigendian and not out.is_dense
+    np.testing.assert_array_equal(read_field(out, "rgb").view(np.uint32), frame.rgb.reshape(-1))
+    points = read_xyz(sent)
+    np.testing.assert_array_equal(read_xyz(out), points)
+
+    normals, curvature = normals_of(out), read_field(out, "curvature")
+    invalid = expected_invalid(points, RADIUS)
+    np.testing.assert_array_equal(np.isnan(normals).any(axis=1), invalid)
+    np.testing.assert_array_equal(np.isnan(curvature), invalid)
+    ok = ~invalid
+    assert ok.sum() > 150_000
+    np.testing.assert_allclose(np.linalg.norm(normals[ok], axis=1), 1.0, atol=1e-5)
+    assert (np.einsum("ij,ij->i", -points[ok], normals[ok]) >= 0).all(), "normals must face the sensor origin"
+    assert curvature[ok].min() >= 0 and curvature[ok].max() <= 1 / 3 + 1e-6
+
+    # The node ran the same estimator with the parameters from its file: compare with an in-process run.
+    finite = np.isfinite(points).all(axis=1)
+    ref, ref_curv = NormalEstimator("pca", radius=RADIUS, k=K, device="cpu").estimate(points[finite])
+    ref = orient_towards_viewpoint(points[finite], ref)
+    np.testing.assert_allclose(normals[finite], ref, atol=1e-4)
+    np.testing.assert_allclose(curvature[finite], ref_curv, atol=1e-5)
+
+
+def test_learned_method_on_a_small_crop(client: CloudClient, frame: Frame) -> None:
+    ok, reason = client.set_parameters({"method": "learned"})
+    assert ok, reason
+    try:
+        crop = frame.cropped(180, 260, 40, 40)  # 1600 points: the learned net is ~1-3k points/s on this CPU
+        sent = crop.to_cloud(client.header())
+        out = client.request(sent, timeout=120)
+        assert out is not None
+        points, normals = read_xyz(sent), normals_of(out)
+        ok_rows = ~np.isnan(normals).any(axis=1)
+        assert ok_rows.sum() > 1000
+        np.testing.assert_allclose(np.linalg.norm(normals[ok_rows], axis=1), 1.0, atol=1e-5)
+        assert (np.einsum("ij,ij->i", -points[ok_rows], normals[ok_rows]) >= 0).all()
+    finally:
+        assert client.set_parameters({"method": "pca", "k": K})[0]
+
+
+# -- parameters -----------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("values", "reason"),
+    [
+        ({"radius": -1.0}, "radius"),
+        ({"k": 2}, "k"),
+        ({"method": "svm"}, "method"),
+        ({"device": "tpu"}, "device"),
+        ({"viewpoint": [1.0, 2.0]}, "viewpoint"),
+        ({"method": "learned", "checkpoint": "/nonexistent/weights.safetensors"}, "not found"),
+        ({"stats_period": 2.0}, "read-only"),
+    ],
+)
+def test_bad_parameters_are_rejected_with_a_reason(client: CloudClient, values: dict, reason: str) -> None:
+    ok, why = client.set_parameters(values)
+    assert not ok
+    assert reason in why
+
+
+def test_parameter_changes_apply_to_the_next_cloud(client: CloudClient, frame: Frame) -> None:
+    crop = frame.cropped(200, 300, 20, 20)
+    assert client.set_parameters({"viewpoint": [0.0, 0.0, 10.0]})[0]  # behind the scene: normals flip
+    try:
+        sent = crop.to_cloud(client.header())
+        out = client.request(sent, timeout=60)
+        assert out is not None
+        points, normals = read_xyz(sent), normals_of(out)
+        ok = ~np.isnan(normals).any(axis=1)
+        assert (np.einsum("ij,ij->i", np.array([0.0, 0.0, 10.0]) - points[ok], normals[ok]) >= 0).all()
+    finally:
+        assert client.set_parameters({"viewpoint": [0.0, 0.0, 0.0]})[0]
+
+
+# -- bad input ------------------------------------------------------------------------------------------------------
+
+
+def _raw_cloud(client: CloudClient, fields: list[PointField], point_step: int, data: bytes, n: int = 4) -> PointCloud2:
+    msg = PointCloud2(header=client.header(), height=1, width=n, fields=fields, point_step=point_step)
+    msg.row_step = n * point_step
+    msg.data = array.array("B")
+    msg.data.frombytes(data)
+    return msg
+
+
+def _xyz_fields(datatype: int = PointField.FLOAT32, size: int = 4) -> list[PointField]:
+    return [PointField(name=a, offset=i * size, datatype=datatype, count=1) for i, a in enumerate("xyz")]
+
+
+def malformed_clouds(client: CloudClient) -> dict[str, PointCloud2]:
+    good = bytes(4 * 12)
+    return {
+        "missing z": _raw_cloud(client, _xyz_fields()[:2], 12, good),
+        "integer xyz": _raw_cloud(client, _xyz_fields(PointField.INT16, 2), 6, bytes(4 * 6)),
+        "short data": _raw_cloud(client, _xyz_fields(), 12, good[:-5]),
+        "point_step too small": _raw_cloud(client, _xyz_fields(), 8, bytes(4 * 8)),
+        "unknown datatype": _raw_cloud(
+            client, [*_xyz_fields(), PointField(name="i", offset=12, datatype=9)], 16, bytes(64)
+        ),
+    }
+
+
+def test_malformed_clouds_are_skipped_and_the_node_keeps_serving(
+    client: CloudClient, pca_node: NodeProcess, frame: Frame
+) -> None:
+    before = _total_rejected(pca_node)
+    bad = malformed_clouds(client)
+    for name, cloud in bad.items():
+        client.send(cloud)
+        client.spin_for(0.2)
+        assert client.request(small_cloud(client, frame), timeout=30) is not None, f"no answer after {name}"
+    assert "skipped a malformed cloud" in pca_node.log
+    assert pca_node.wait_for_log(f"{before + len(bad)} rejected", 10), pca_node.log[-2000:]
+    assert "Traceback" not in pca_node.log
+
+
+def _total_rejected(node: NodeProcess) -> int:
+    totals = re.findall(r"total: \d+ clouds, \d+ dropped, (\d+) rejected", node.log)
+    return int(totals[-1]) if totals else 0
+
+
+def test_empty_cloud_gets_an_empty_answer_with_normal_fields(client: CloudClient) -> None:
+    sent = PointCloud2(header=client.header(), height=1, width=0, fields=_xyz_fields(), point_step=12)
+    out = client.request(sent, timeout=30)
+    assert out is not None
+    assert out.width * out.height == 0 and len(out.data) == 0
+    assert [f.name for f in out.fields] == ["x", "y", "z", *NORMAL_FIELDS]
+
+
+def test_all_nan_cloud_gets_nan_normals(client: CloudClient, pca_node: NodeProcess) -> None:
+    n = 50
+    nan = np.full(n, np.nan, np.float32)
+    sent = make_cloud(
+        client.header(), {"x": nan, "y": nan, "z": nan, "intensity": np.arange(n, dtype=np.uint16)}, 5, 10
+    )
+    out = client.request(sent, timeout=30)
+    assert out is not None
+    assert (out.height, out.width) == (5, 10) and not out.is_dense
+    assert np.isnan(normals_of(out)).all() and np.isnan(read_field(out, "curvature")).all()
+    np.testing.assert_array_equal(read_field(out, "intensity"), np.arange(n))
+    assert "no finite points" in pca_node.log
+
+
+# -- shutdown -------------------------------------------------------------------------------------------------------
+
+
+def test_sigint_during_an_estimate_exits_cleanly(client: CloudClient, pca_node: NodeProcess, frame: Frame) -> None:
+    """Last in this module: it ends the shared node. A learned full frame takes minutes, so it is surely in flight."""
+    assert client.set_parameters({"method": "learned"})[0]
+    client.send(frame.to_cloud(client.header()))
+    client.spin_for(1.5)  # reliable delivery of ~5 MB, then the worker is inside estimate()
+    code, seconds = pca_node.stop(signal.SIGINT)
+    assert code == 0, pca_node.log[-3000:]
+    assert seconds < SHUTDOWN_S, f"took {seconds:.2f} s"
+    assert "Traceback" not in pca_node.log
+    assert "shut down" in pca_node.log and "still busy" not in pca_node.log, "the estimate was not cancelled"
+
+
+# -- separate processes ---------------------------------------------------------------------------------------------
+
+
+def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, install_prefix: Path, frame: Frame) -> None:
+    """The README's route: the installed config/params.yaml (learned, default checkpoint), best-effort input.
+
+    A small cloud gets through (resent while unanswered: best effort may lose it), then SIGTERM ends the node cleanly.
+    """
+    shipped = install_prefix / "share" / PACKAGE / "config" / "params.yaml"
+    node = start_node(shipped, {"input": "/tn_term/in", "output": "/tn_term/out"})
+    assert node.wait_for_log("ready:", 60), node.log
+    assert "method=learned, checkpoint=default" in node.log
+    with CloudClient("/tn_term/in", "/tn_term/out") as c:
+        assert c.wait_for_node(30)
+        out = c.request(small_cloud(c, frame), timeout=60, resend_every=5.0)
+        assert out is not None
+        assert np.isfinite(normals_of(out)).all(axis=1).sum() > 300
+    code, seconds = node.stop(signal.SIGTERM)
+    assert code == 0 and seconds < SHUTDOWN_S, (code, seconds, node.log[-2000:])
+    assert "Traceback" not in node.log
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({"method": "learned", "checkpoint": "/nonexistent/weights.safetensors"}, "checkpoint not found"),
+        ({"method": "pca", "radius": -0.5}, "radius"),
+        ({"method": "pca", "device": "cuda:7"}, "device"),
+    ],
+)
+def test_startup_errors_are_one_clear_line_and_exit_1(start_node, params: dict, message: str) -> None:
+    node = start_node(params, {})
+    code = node.proc.wait(60)
+    lines = [line for line in node.log.splitlines() if "cannot start" in line]
+    assert code == 1, node.log
+    assert len(lines) == 1 and message in lines[0], node.log
+    assert "Traceback" not in node.log

@@ -1,0 +1,214 @@
+"""Parameter validation: the pure rules in node_params, and the real node's descriptors and on-set callback."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import fields
+
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.parameter import Parameter
+
+from triplet_normal_ros.ros.node import StartupError, TripletNormalNode
+from triplet_normal_ros.ros.params import (
+    K_FROM_CHECKPOINT,
+    SPEC_BY_NAME,
+    SPECS,
+    NodeSettings,
+    apply,
+    needs_reload,
+    validate,
+    validate_all,
+)
+
+# -- the rules, without ROS ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("spec", SPECS, ids=lambda s: s.name)
+def test_every_default_is_valid(spec) -> None:
+    assert validate(spec.name, spec.default) is None
+
+
+def test_settings_defaults_agree_with_the_declared_defaults() -> None:
+    settings = NodeSettings()
+    for f in fields(NodeSettings):
+        expected = SPEC_BY_NAME[f.name].default
+        actual = getattr(settings, f.name)
+        if f.name == "k":
+            assert actual == K_FROM_CHECKPOINT  # the real default comes from the checkpoint
+        else:
+            assert (list(actual) if f.name == "viewpoint" else actual) == expected
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("radius", 0.0),
+        ("radius", -0.1),
+        ("radius", float("nan")),
+        ("radius", float("inf")),
+        ("radius", "0.1"),
+        ("k", 2),
+        ("k", 3.5),
+        ("k", True),
+        ("batch_size", 0),
+        ("method", "svm"),
+        ("method", 1),
+        ("device", "gpu"),
+        ("device", "cuda:x"),
+        ("orient", 1),
+        ("viewpoint", [0.0, 0.0]),
+        ("viewpoint", [0.0, float("nan"), 0.0]),
+        ("viewpoint", 3.0),
+        ("stats_period", 0.0),
+    ],
+)
+def test_bad_values_get_a_reason_naming_the_parameter(name: str, value) -> None:
+    reason = validate(name, value)
+    assert reason and name in reason
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("radius", 0.01),
+        ("radius", 2),
+        ("k", 3),
+        ("k", 128),
+        ("method", "pca"),
+        ("method", "learned"),
+        ("device", "cpu"),
+        ("device", "auto"),
+        ("orient", False),
+        ("viewpoint", [1, 2.5, -3]),
+        ("checkpoint", "/some/file.safetensors"),
+    ],
+)
+def test_good_values_pass(name: str, value) -> None:
+    assert validate(name, value) is None
+
+
+def test_names_that_are_not_ours_pass_untouched() -> None:
+    assert validate("qos_overrides./input.subscription.depth", -5) is None
+    assert validate_all({"use_sim_time": True, "radius": 0.02}) is None
+    assert "radius" in validate_all({"use_sim_time": True, "radius": -1.0})
+
+
+def test_apply_converts_types_and_keeps_the_rest() -> None:
+    s = apply(NodeSettings(), {"radius": 1, "viewpoint": [1, 2, 3], "use_sim_time": True})
+    assert s.radius == 1.0 and isinstance(s.radius, float)
+    assert s.viewpoint == (1.0, 2.0, 3.0)
+    assert s.method == "learned" and s.k == K_FROM_CHECKPOINT
+
+
+def test_only_method_checkpoint_and_device_need_a_reload() -> None:
+    for name in ("method", "checkpoint", "device"):
+        assert needs_reload({name: SPEC_BY_NAME[name].default})
+    assert not needs_reload({"radius": 0.1, "k": 10, "orient": False, "viewpoint": [0, 0, 1], "batch_size": 8})
+
+
+def test_estimator_args_map_the_empty_defaults_to_none() -> None:
+    args = NodeSettings(method="pca").estimator_args()
+    assert args["k"] is None and args["checkpoint"] is None and args["method"] == "pca"
+    assert NodeSettings(k=64, checkpoint="/x").estimator_args()["k"] == 64
+
+
+# -- the node itself, in process ------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def context(ros_env: dict[str, str]) -> Iterator[Context]:
+    ctx = Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+def make_node(context: Context, **overrides) -> TripletNormalNode:
+    params = [Parameter(k, value=v) for k, v in {"method": "pca", **overrides}.items()]
+    return TripletNormalNode(context=context, parameter_overrides=params, start_parameter_services=False)
+
+
+@pytest.fixture
+def node(context: Context) -> Iterator[TripletNormalNode]:
+    n = make_node(context)
+    yield n
+    assert n.stop()
+    n.destroy_node()
+
+
+def test_declared_with_descriptors_ranges_and_descriptions(node: TripletNormalNode) -> None:
+    for spec in SPECS:
+        d = node.describe_parameter(spec.name)
+        assert d.description == spec.description
+        assert d.read_only == spec.read_only
+        if spec.bounds and spec.kind is int:
+            assert (d.integer_range[0].from_value, d.integer_range[0].to_value) == spec.bounds
+        elif spec.bounds:
+            assert (d.floating_point_range[0].from_value, d.floating_point_range[0].to_value) == spec.bounds
+
+
+def test_k_defaults_to_the_estimators_default(node: TripletNormalNode) -> None:
+    assert node.get_parameter("k").value == 500  # pca has no checkpoint: the documented fallback
+
+
+def test_a_k_override_is_kept(context: Context) -> None:
+    n = make_node(context, k=32)
+    try:
+        assert n.get_parameter("k").value == 32
+    finally:
+        n.stop()
+        n.destroy_node()
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"radius": -1.0},
+        {"radius": 0},  # an integer for a double parameter
+        {"k": 1},
+        {"method": "svm"},
+        {"device": "cuda:99"},
+        {"viewpoint": [1.0]},
+        {"stats_period": 1.0},
+        {"method": "learned", "checkpoint": "/nonexistent/weights.safetensors"},
+    ],
+)
+def test_rejected_changes_leave_everything_as_it_was(node: TripletNormalNode, changes: dict) -> None:
+    before = {name: node.get_parameter(name).value for name in SPEC_BY_NAME}
+    result = node.set_parameters_atomically([Parameter(k, value=v) for k, v in changes.items()])
+    assert not result.successful and result.reason
+    after = {name: node.get_parameter(name).value for name in SPEC_BY_NAME}
+    assert list(map(str, after.values())) == list(map(str, before.values()))
+
+
+def test_accepted_changes_reach_the_worker_snapshot(node: TripletNormalNode) -> None:
+    estimator = node._active[0]
+    result = node.set_parameters_atomically(
+        [Parameter("radius", value=0.07), Parameter("k", value=16), Parameter("viewpoint", value=[0.0, 0.0, 1.0])]
+    )
+    assert result.successful, result.reason
+    now_estimator, settings = node._active
+    assert now_estimator is estimator  # in-place settings: no reload
+    assert (settings.radius, settings.k, settings.viewpoint) == (0.07, 16, (0.0, 0.0, 1.0))
+
+
+def test_a_device_change_builds_a_new_estimator(node: TripletNormalNode) -> None:
+    estimator = node._active[0]
+    assert node.set_parameters([Parameter("device", value="cpu")])[0].successful
+    assert node._active[0] is not estimator and node._active[1].device == "cpu"
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"radius": -1.0}, "radius"),
+        ({"method": "svm"}, "method"),
+        ({"viewpoint": [0.0, 1.0]}, "viewpoint"),
+        ({"method": "learned", "checkpoint": "/nonexistent/weights.safetensors"}, "not found"),
+    ],
+)
+def test_bad_startup_parameters_raise_one_startup_error(context: Context, overrides: dict, message: str) -> None:
+    with pytest.raises(StartupError, match=message):
+        make_node(context, **overrides)

@@ -1,0 +1,187 @@
+"""Training end to end at toy scale: the losses fall, the checkpoint loads, resuming continues, triplets obey the
+paper's constraints on generated data."""
+
+import argparse
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from triplet_normal_ros.cli import train
+from triplet_normal_ros.core.checkpoint import read_metadata
+from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.neighbours import NeighbourIndex
+from triplet_normal_ros.errors import TrainingError
+from triplet_normal_ros.evaluation.ablation import _variants, reference_estimator
+from triplet_normal_ros.training.dataset import build_dataset
+from triplet_normal_ros.training.recipes import RECIPES
+from triplet_normal_ros.training.triplets import mine_triplets
+
+TOY = (
+    "--shapes box_3x2x1 sphere --val-shapes v_notch_block --n-points 3000 --k 32 --patches-per-shape 96 "
+    "--regressor-patches-per-shape 256 --val-patches-per-cloud 16 --encoder-widths 16 32 --regressor-widths 32 "
+    "--seed 3 --finetune-epochs 0 --no-residual --loss cos"
+)
+
+
+def _args(extra: str, run_dir) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    train.add_arguments(parser)
+    return parser.parse_args(f"{TOY} {extra} --run-dir {run_dir}".split())
+
+
+@pytest.fixture(scope="module")
+def toy_run(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("train")
+    extra = "--encoder-epochs 1 --regressor-epochs 6 --finetune-epochs 2 --finetune-patches-per-shape 64 --lr 0.05"
+    assert train.run(_args(extra, run_dir)) == 0
+    return run_dir
+
+
+def test_regressor_loss_falls(toy_run):
+    rows = [h for h in json.loads((toy_run / "history.json").read_text())["history"] if h["phase"] == "regressor"]
+    assert len(rows) == 6
+    assert rows[-1]["train"] < 0.8 * rows[0]["train"]
+    assert min(h["val"] for h in rows) < rows[0]["val"]
+
+
+def test_finetune_phase_runs_end_to_end(toy_run):
+    history = json.loads((toy_run / "history.json").read_text())["history"]
+    assert [h["phase"] for h in history] == ["encoder"] + ["regressor"] * 6 + ["finetune"] * 2
+    best_b = min(h["val"] for h in history if h["phase"] == "regressor")
+    summary = json.loads((toy_run / "history.json").read_text())
+    assert summary["final_val_normal_loss"] <= best_b  # the shipped weights are the best of (b) and (c)
+    clouds = 2 * 6  # two shapes, clean + five noise levels
+    assert {h["n"] for h in history if h["phase"] == "finetune"} == {clouds * 64}  # phase (c)'s own count
+    assert {h["n"] for h in history if h["phase"] == "regressor"} == {clouds * 256}
+
+
+def test_checkpoint_records_recipe_and_loads(toy_run):
+    meta = read_metadata(toy_run / "model.safetensors")
+    assert meta["k"] == 32
+    assert meta["training"]["recipe"]["encoder"] == [16, 32]
+    assert meta["training"]["data_seed"] == 3
+    est = NormalEstimator("learned", radius=0.05, checkpoint=toy_run / "model.safetensors", device="cpu")
+    cloud = build_dataset("val", n_points=2000, shapes=["v_notch_block"], noise_levels=[0.0], progress=False)[0]
+    normals, _ = est.estimate(cloud.points, query=np.arange(200))
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-4)
+    assert (toy_run / "training_curves.png").stat().st_size > 10_000
+
+
+def test_resume_continues_where_it_stopped(toy_run, tmp_path):
+    run_dir = tmp_path / "resume"
+    train.run(_args("--encoder-epochs 1 --regressor-epochs 2", run_dir))
+    first = json.loads((run_dir / "history.json").read_text())["history"]
+    train.run(_args("--encoder-epochs 1 --regressor-epochs 3 --resume", run_dir))
+    resumed = json.loads((run_dir / "history.json").read_text())["history"]
+    assert [h["epoch"] for h in resumed if h["phase"] == "regressor"] == [0, 1, 2]
+    assert resumed[: len(first)] == first  # earlier epochs are kept, not re-run
+
+
+def test_triplets_obey_the_angle_threshold_and_stay_close():
+    cloud = build_dataset("train", n_points=5000, shapes=["box_3x2x1"], noise_levels=[0.01], progress=False)[0]
+    points, normals = cloud.points.astype(np.float64), cloud.normals.astype(np.float64)
+    index, rng = NeighbourIndex(points), np.random.default_rng(0)
+    anchors = rng.choice(len(points), 300, replace=False)
+    positive, negative = mine_triplets(index, normals, anchors, 0.05, rng)
+    assert (positive >= 0).all() and (negative >= 0).all()
+    cos_th = math.cos(math.radians(20))
+    assert (np.einsum("ij,ij->i", normals[anchors], normals[positive]) >= cos_th).all()
+    assert (np.einsum("ij,ij->i", normals[anchors], normals[negative]) < cos_th).all()
+    assert (positive != anchors).all() and (negative != anchors).all()
+    d_pos = np.linalg.norm(points[positive] - points[anchors], axis=1)
+    assert np.median(d_pos) < 0.05  # positives come from inside the ball
+    # A negative is the nearest point across a >20° change: nothing closer qualifies.
+    all_d = np.linalg.norm(points[None] - points[anchors][:, None], axis=-1)
+    all_cos = normals[anchors] @ normals.T
+    nearest_neg = np.where(all_cos < cos_th, all_d, np.inf).min(axis=1)
+    d_neg = np.linalg.norm(points[negative] - points[anchors], axis=1)
+    assert np.mean(np.isclose(d_neg, nearest_neg)) > 0.95
+
+
+def test_triplet_patches_share_the_anchor_frame():
+    from triplet_normal_ros.training.batches import CloudSampler
+
+    cloud = build_dataset("train", n_points=4000, shapes=["wedge"], noise_levels=[0.0], progress=False)[0]
+    sampler = CloudSampler(cloud.points, cloud.normals, 0.05, 32)
+    rng, gen = np.random.default_rng(1), torch.Generator().manual_seed(1)
+    anchors = rng.choice(len(cloud.points), 50, replace=False)
+    a = sampler.patches(anchors, gen)
+    s = sampler.patches(anchors, gen, rotation=a.rotation)
+    assert torch.equal(s.rotation, a.rotation)
+    assert s.points.norm(dim=-1).max() <= 1.0 + 1e-5
+
+
+def test_cpu_recipe_options_residual_head_and_relative_loss_reach_the_checkpoint(tmp_path):
+    run_dir = tmp_path / "residual"
+    extra = "--encoder-epochs 1 --regressor-epochs 3 --residual --loss relative --relative-floor-deg 7.5"
+    train.run(_args(extra, run_dir))
+    meta = read_metadata(run_dir / "model.safetensors")
+    assert meta["architecture"]["residual"] is True
+    assert meta["training"]["recipe"]["loss"] == "relative"
+    assert meta["training"]["recipe"]["relative_floor_deg"] == 7.5
+    history = json.loads((run_dir / "history.json").read_text())["history"]
+    assert all(math.isfinite(h["val"]) for h in history if h["phase"] != "encoder")
+    # The head corrects the PCA normal, so on a clean plane it must stay on the plane's normal.
+    xy = np.random.default_rng(0).uniform(-1, 1, (3000, 2))
+    plane = np.c_[xy, 0.3 * xy[:, 0] + 0.1 * xy[:, 1]]
+    est = NormalEstimator("learned", radius=0.2, checkpoint=run_dir / "model.safetensors", device="cpu")
+    normals, _ = est.estimate(plane, query=np.arange(0, 3000, 30))
+    truth = np.array([0.3, 0.1, -1.0]) / np.linalg.norm([0.3, 0.1, -1.0])
+    assert np.degrees(np.arccos(np.abs(normals @ truth))).max() < 10.0
+
+
+def test_ablation_rows_are_the_paper_ablations_and_ours_at_one_budget(tmp_path):
+    args = argparse.Namespace(patches_per_shape=7, epochs=2, encoder_from=tmp_path / "encoder.safetensors")
+    rows = {name: (recipe, encoder) for name, recipe, encoder in _variants(args, RECIPES["cpu"])}
+    exponents = [r.exponent for name, (r, _) in rows.items() if name.startswith("paper head")]
+    assert exponents == [2, 4, 8, 12]
+    assert all(not r.residual and r.loss == "cos" for name, (r, _) in rows.items() if name.startswith("paper head"))
+    losses = {r.loss for name, (r, _) in rows.items() if name.startswith("residual head")}
+    assert losses == {"cos", "angle", RECIPES["cpu"].loss}
+    direct = [(r, e) for name, (r, e) in rows.items() if "direct" in name]
+    assert len(direct) == 1 and not direct[0][0].triplet and direct[0][1] is None
+    for name, (recipe, encoder) in rows.items():
+        assert (recipe.regressor_patches_per_shape, recipe.regressor_epochs, recipe.finetune_epochs) == (7, 2, 0)
+        assert encoder == (None if "direct" in name else args.encoder_from)
+
+
+@pytest.mark.parametrize("floor", ["0", "-5", "nan"])
+def test_a_relative_floor_that_is_not_positive_is_refused_by_the_cli(floor, tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        _args(f"--loss relative --relative-floor-deg {floor}", tmp_path)
+    assert "must be a finite number > 0" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "flag", ["--finetune-patches-per-shape 0", "--regressor-patches-per-shape -3", "--k 0", "--regressor-epochs -1"]
+)
+def test_a_size_or_epoch_count_that_cannot_work_is_refused(flag, tmp_path):
+    with pytest.raises(TrainingError, match=f"{flag.split()[0]} must be >= "):
+        train.recipe_from_args(_args(flag, tmp_path))
+
+
+def test_a_relative_floor_without_the_relative_loss_is_refused(tmp_path):
+    args = _args("--loss angle --relative-floor-deg 5", tmp_path)
+    with pytest.raises(TrainingError, match="only applies to --loss relative"):
+        train.recipe_from_args(args)
+
+
+def test_resuming_under_a_recipe_that_optimises_something_else_is_refused(toy_run, tmp_path):
+    run_dir = tmp_path / "switch"
+    train.run(_args("--encoder-epochs 1 --regressor-epochs 1", run_dir))
+    state = torch.load(run_dir / "state.pt", weights_only=True)
+    assert state["recipe"]["loss"] == "cos"
+    with pytest.raises(TrainingError, match="loss: 'cos' -> 'angle'"):
+        train.run(_args("--encoder-epochs 1 --regressor-epochs 2 --loss angle --resume", run_dir))
+    del state["recipe"]
+    torch.save(state, run_dir / "state.pt")
+    with pytest.raises(TrainingError, match="does not record its recipe"):
+        train.run(_args("--encoder-epochs 1 --regressor-epochs 2 --resume", run_dir))
+
+
+def test_the_ablation_reference_is_pca_over_the_learned_rows_pool():
+    est = reference_estimator(RECIPES["cpu"], "cpu")
+    assert est.method == "pca" and est.k == 4 * RECIPES["cpu"].k == 512

@@ -1,0 +1,38 @@
+"""`triplet-normal bench`: points/s per stage (evaluation.bench does the work)."""
+
+import argparse
+from pathlib import Path
+
+from ..core.conventions import METHODS
+from . import args as checks
+
+DESCRIPTION = """Points/s per stage of the real inference path on a synthetic noisy torus. Prints the table; with
+--out, also writes it into that markdown file. See docs/RESULTS.md."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--points", type=int, default=100_000, metavar="N", help="cloud size (default 100000)")
+    p.add_argument("--device", metavar="D", help="only this device (default: cpu, plus cuda when available)")
+    p.add_argument("--method", choices=METHODS, help="only this method (default: all)")
+    p.add_argument("--learned-cpu-queries", type=int, default=5000, metavar="M", help="learned on CPU times M queries")
+    p.add_argument("--checkpoint", metavar="C", help="checkpoint (default: the shipped one)")
+    p.add_argument("--out", type=Path, metavar="MD", help="results markdown to update (e.g. docs/RESULTS.md)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..evaluation import bench
+
+    checks.at_least("points", args.points, bench.WARMUP_QUERIES)
+    checks.at_least("learned-cpu-queries", args.learned_cpu_queries, 1)
+    checks.device(args.device)
+    checks.results_file(args.out)
+    bench.run(
+        n_points=args.points,
+        device=args.device,
+        method=args.method,
+        learned_cpu_queries=args.learned_cpu_queries,
+        checkpoint=args.checkpoint,
+        out=args.out,
+        command=checks.command_line(args.argv),
+    )
+    return 0

@@ -1,0 +1,126 @@
+"""`triplet-normal estimate IN [--out OUT]`: normals for one cloud file."""
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core.conventions import METHODS, PCA_DEFAULT_K, RADIUS_FRACTION
+from ..errors import UsageError
+from . import args as checks
+
+#: Inputs with more query points than this get a tqdm bar (on a terminal), fed by the estimator's progress callback.
+PROGRESS_MIN_POINTS = 20_000
+
+DESCRIPTION = """Estimate unit normals (and PCA curvature) for one point cloud. Normal signs are arbitrary unless
+--viewpoint is given, which flips each normal to face that point (PCL's flipNormalTowardsViewpoint).
+Without --out the normals go to IN with suffix .normals (never overwriting an existing file).
+Rows for points with fewer than 3 neighbours within the radius are NaN. See docs/CLI.md."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", metavar="IN", type=Path, help="point cloud: .xyz, .npy, .ply or .pcd")
+    p.add_argument("--out", metavar="OUT", help="output: .normals, .npy, .ply or .pcd; '-' = .normals on stdout")
+    p.add_argument("--indices", metavar="FILE", type=Path, help="PCPNet .pidx: estimate only at these 0-based indices")
+    radius = p.add_mutually_exclusive_group()
+    radius.add_argument("--radius", type=float, metavar="R", help="ball radius in the cloud's units")
+    radius.add_argument(
+        "--radius-rel",
+        type=float,
+        metavar="F",
+        help=f"radius as a fraction of the bbox diagonal (default {RADIUS_FRACTION})",
+    )
+    p.add_argument(
+        "--k",
+        type=int,
+        metavar="K",
+        help=f"learned: points per patch (default: the checkpoint's); pca: neighbour cap (default {PCA_DEFAULT_K})",
+    )
+    p.add_argument("--checkpoint", metavar="C", help="safetensors checkpoint (default: the one shipped in the package)")
+    p.add_argument("--method", choices=METHODS, default="learned", help="default: learned")
+    p.add_argument("--device", default="auto", metavar="D", help="auto, cpu, cuda or cuda:N (default auto)")
+    p.add_argument(
+        "--viewpoint", type=float, nargs=3, metavar=("X", "Y", "Z"), help="orient: flip normals to face this point"
+    )
+    p.add_argument("--batch-size", type=int, metavar="B", help="patches per network call (default: the estimator's)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Read IN, estimate at all points or at --indices, orient if asked, write OUT, print one summary line."""
+    from ..core.conventions import bbox_diagonal
+    from ..io.cloud_files import read_cloud, read_indices, write_normals
+
+    _check(args)
+    out = _output_path(args)
+    cloud = read_cloud(args.input)
+    query = read_indices(args.indices, len(cloud.points)) if args.indices else np.arange(len(cloud.points))
+    radius = args.radius or (args.radius_rel or RADIUS_FRACTION) * bbox_diagonal(cloud.points)
+    if not radius > 0:
+        raise UsageError(f"{args.input}: the cloud has zero extent, so --radius-rel gives radius 0; pass --radius")
+    estimator = _make_estimator(args, radius)
+    start = time.perf_counter()
+    normals, curvature = estimate_with_progress(estimator, cloud.points, query)
+    seconds = time.perf_counter() - start
+    if args.viewpoint is not None:
+        from ..core.orientation import orient_towards_viewpoint
+
+        normals = orient_towards_viewpoint(cloud.points[query], normals, args.viewpoint)
+    organized = (cloud.height, cloud.width) if args.indices is None else None
+    write_normals(out, cloud.points[query], normals, curvature, organized=organized)
+    valid = int(np.isfinite(normals).all(axis=1).sum())
+    summary = (
+        f"{args.input}: {len(cloud.points)} points, {len(query)} estimated, {valid} valid, {seconds:.2f} s "
+        f"({args.method}, radius {radius:.6g}, {estimator.device}) -> {out}"
+    )
+    print(summary, file=sys.stderr if out == "-" else sys.stdout)
+    return 0
+
+
+def estimate_with_progress(estimator, points: np.ndarray, query: np.ndarray, timings: dict | None = None):
+    """`estimator.estimate` with a tqdm bar fed by its progress callback (shown on a terminal only)."""
+    if len(query) <= PROGRESS_MIN_POINTS:
+        return estimator.estimate(points, query, timings=timings)
+    from tqdm import tqdm
+
+    with tqdm(total=len(query), unit="pt", desc=estimator.method, disable=None, file=sys.stderr) as bar:
+        return estimator.estimate(points, query, timings=timings, progress=bar.update)
+
+
+def _check(args: argparse.Namespace) -> None:
+    checks.positive("radius", args.radius)
+    checks.positive("radius-rel", args.radius_rel)
+    checks.at_least("k", args.k, 3)
+    checks.at_least("batch-size", args.batch_size, 1)
+    if args.viewpoint is not None and not np.isfinite(args.viewpoint).all():
+        raise UsageError(f"--viewpoint must be three finite numbers, got {args.viewpoint}")
+    checks.device(args.device)
+
+
+def _output_path(args: argparse.Namespace) -> str:
+    """--out as given, or IN with suffix .normals beside it, never overwriting (PCPNet keeps ground truth there)."""
+    from ..io.cloud_files import NORMALS_SUFFIXES
+
+    if args.out == "-":
+        return "-"
+    if args.out is not None:
+        out = Path(args.out)
+        if out.suffix.lower() not in NORMALS_SUFFIXES:
+            raise UsageError(f"--out {out}: unknown output suffix {out.suffix!r} (use {', '.join(NORMALS_SUFFIXES)})")
+        if not out.parent.is_dir():
+            raise UsageError(f"--out {out}: directory {out.parent} does not exist")
+        return str(out)
+    out = args.input.with_suffix(".normals")
+    if out.exists():
+        raise UsageError(f"{out} already exists; pass --out {out} to overwrite it, or another --out")
+    return str(out)
+
+
+def _make_estimator(args: argparse.Namespace, radius: float):
+    from ..core.estimator import NormalEstimator
+
+    options = {"k": args.k, "checkpoint": args.checkpoint, "device": args.device}
+    if args.batch_size is not None:
+        options["batch_size"] = args.batch_size
+    return NormalEstimator(method=args.method, radius=radius, **options)

@@ -1,0 +1,48 @@
+"""`triplet-normal eval`: accuracy of the learned estimator against PCA (evaluation.evaluate does the work)."""
+
+import argparse
+from pathlib import Path
+
+from ..core.conventions import RADIUS_FRACTION
+from . import args as checks
+
+DESCRIPTION = f"""MSAE (rad²) and RMSE (degrees) of the learned estimator, PCA at the same radius
+({RADIUS_FRACTION:.0%} of the bbox diagonal) and PCA at its best radius per cloud (an oracle over 1-10%), on the
+validation set and on the PCPNet shapes with 0 / 0.12 / 0.6 / 1.2% noise. Prints the tables; with --out, also writes
+them into that markdown file and a heat map into images/ beside it. See docs/CLI.md."""
+
+#: Where the PCPNet shapes are looked for unless --pcpnet-dir says otherwise: beside the working directory.
+DEFAULT_PCPNET_DIR = Path("../shared/data/pcpnet")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--checkpoint", metavar="C", help="checkpoint to evaluate (default: the shipped one)")
+    p.add_argument("--device", default="auto", metavar="D", help="auto, cpu, cuda or cuda:N (default auto)")
+    p.add_argument("--points-per-cloud", type=int, default=5000, metavar="N", help="query points per cloud (5000)")
+    p.add_argument(
+        "--pcpnet-dir",
+        type=Path,
+        default=DEFAULT_PCPNET_DIR,
+        metavar="DIR",
+        help=f"PCPNet shapes (default: {DEFAULT_PCPNET_DIR}, relative to the working directory)",
+    )
+    p.add_argument("--out", type=Path, metavar="MD", help="results markdown to update (e.g. docs/RESULTS.md)")
+    p.add_argument("--quick", action="store_true", help="a small subset, for tests (not for reporting)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..evaluation import evaluate
+
+    checks.at_least("points-per-cloud", args.points_per_cloud, 10)
+    checks.device(args.device)
+    checks.results_file(args.out)
+    evaluate.run(
+        checkpoint=args.checkpoint,
+        device=args.device,
+        points_per_cloud=args.points_per_cloud,
+        pcpnet_dir=args.pcpnet_dir,
+        out=args.out,
+        quick=args.quick,
+        command=checks.command_line(args.argv),
+    )
+    return 0

@@ -1,0 +1,100 @@
+"""`triplet-normal train`: a recipe preset plus overrides -> training.trainer.train."""
+
+import argparse
+import dataclasses
+import math
+from pathlib import Path
+
+from ..errors import TrainingError
+from . import args as checks
+
+DESCRIPTION = """Train the encoder (phase a, triplet loss) and the regressor (phase b) from the generated shapes,
+resumable with --resume. See docs/TRAINING.md."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..training.losses import LOSSES
+    from ..training.recipes import RECIPES
+
+    parser.add_argument("--recipe", choices=sorted(RECIPES), default="cpu", help="preset (default: cpu)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="checkpoint to write (default: run-dir/model.safetensors)"
+    )
+    parser.add_argument("--run-dir", type=Path, default=Path("out/train"), help="state, history and curves")
+    parser.add_argument("--resume", action="store_true", help="continue from run-dir/state.pt")
+    parser.add_argument("--device", default="auto")
+    parser.add_argument("--encoder-from", type=Path, help="skip phase (a): reuse this checkpoint's encoder")
+    parser.add_argument("--no-triplet", action="store_true", help="ablation: train encoder+regressor directly")
+    parser.add_argument("--shapes", nargs="+", help="train on these shapes only (smoke runs)")
+    parser.add_argument("--val-shapes", nargs="+", help="validate on these shapes only")
+    for name in (
+        "k",
+        "patches_per_shape",
+        "encoder_epochs",
+        "regressor_epochs",
+        "regressor_patches_per_shape",
+        "finetune_epochs",
+        "finetune_patches_per_shape",
+        "batch_size",
+        "n_points",
+        "exponent",
+        "val_patches_per_cloud",
+        "seed",
+    ):
+        parser.add_argument("--" + name.replace("_", "-"), type=int)
+    parser.add_argument(
+        "--loss", choices=LOSSES, help="normal loss: the paper's cos^n, the squared angle, or it relative to PCA's"
+    )
+    parser.add_argument(
+        "--relative-floor-deg", type=_positive_float, help="floor (> 0) on PCA's angle in the relative loss"
+    )
+    parser.add_argument(
+        "--residual", action=argparse.BooleanOptionalAction, help="regress a correction to the PCA normal"
+    )
+    parser.add_argument(
+        "--finetune-freeze-bn", action=argparse.BooleanOptionalAction, help="phase (c) keeps BatchNorm statistics"
+    )
+    parser.add_argument("--lr", type=float)
+    parser.add_argument("--finetune-lr", type=float)
+    parser.add_argument("--encoder-widths", type=int, nargs="+", dest="encoder")
+    parser.add_argument("--regressor-widths", type=int, nargs="+", dest="regressor")
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
+def recipe_from_args(args: argparse.Namespace):
+    """The preset with every given option applied, checked."""
+    from ..training.recipes import RECIPES, Recipe, check_counts
+
+    overrides = {
+        f.name: getattr(args, f.name) for f in dataclasses.fields(Recipe) if getattr(args, f.name, None) is not None
+    }
+    if args.no_triplet:
+        overrides["triplet"] = False
+    recipe = dataclasses.replace(RECIPES[args.recipe], **overrides)
+    if args.relative_floor_deg is not None and recipe.loss != "relative":
+        raise TrainingError(f"--relative-floor-deg only applies to --loss relative (this run uses {recipe.loss!r})")
+    check_counts(recipe)
+    return recipe
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..core.checkpoint import default_checkpoint_path
+    from ..training.trainer import train
+
+    checks.device(args.device)
+    recipe = recipe_from_args(args)
+    out = args.out or args.run_dir / "model.safetensors"
+    summary = train(recipe, out, args.run_dir, args.device, args.resume, args.encoder_from)
+    print(
+        f"wrote {out} in {summary['wall_seconds']:.0f} s on {summary['device']}; "
+        f"final validation normal loss {summary['final_val_normal_loss']:.4f}"
+    )
+    if out.resolve() == default_checkpoint_path():
+        print("this replaced the shipped default checkpoint")
+    return 0

@@ -1,0 +1,33 @@
+"""The contract between training and inference, defined once.
+
+A checkpoint records these values in its metadata (``conventions``) and loading refuses one trained under others,
+so changing a value here can never silently mismatch a shipped model.
+"""
+
+import numpy as np
+
+#: The methods `NormalEstimator` offers.
+METHODS = ("learned", "pca")
+#: The learned method draws its k points from the nearest POOL_FACTOR * k points inside the ball; PCA frames and
+#: curvature come from that whole pool.
+POOL_FACTOR = 4
+#: Training radius, and the offline tools' default: this fraction of the cloud's bounding-box diagonal.
+RADIUS_FRACTION = 0.05
+#: Fewer neighbours than this inside the ball gives a NaN row (PCL's convention: a plane needs three points).
+MIN_NEIGHBOURS = 3
+#: PCA's neighbour cap when no k is given: large enough to be the whole ball for typical depth-camera radii.
+PCA_DEFAULT_K = 500
+
+
+def checkpoint_conventions() -> dict[str, float | int]:
+    """What a checkpoint records, and what loading compares against."""
+    return {"pool_factor": POOL_FACTOR, "radius_fraction": RADIUS_FRACTION}
+
+
+def bbox_diagonal(points: np.ndarray) -> float:
+    """Length of the axis-aligned bounding-box diagonal of the finite points (0 for fewer than two)."""
+    points = np.asarray(points)
+    finite = points[np.isfinite(points).all(axis=1)]
+    if len(finite) < 2:
+        return 0.0
+    return float(np.linalg.norm(finite.max(axis=0) - finite.min(axis=0)))

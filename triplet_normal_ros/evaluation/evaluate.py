@@ -1,0 +1,382 @@
+"""`triplet-normal eval`: the learned estimator against PCA, measured in one run, written into docs/RESULTS.md.
+
+Per cloud: ours at r = 5% of the bbox diagonal; PCA at the same radius; PCA at its best radius of a grid (1-10%),
+chosen per cloud by MSAE against the ground truth, i.e. an oracle no real user has (it flatters PCA). PCA sees the
+whole ball up to the learned method's pool of 4k nearest points, so both methods use the same neighbourhood at 5%.
+Query points are a fixed-seed subset; neighbourhoods come from the whole cloud.
+"""
+
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..core.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
+from ..errors import CloudFileError
+from ..io.cloud_files import read_normals_file, read_points
+from .metrics import angles_rad, invalid_count, msae, ratio_interval, rmse_deg
+
+PCA_GRID = (0.01, 0.02, 0.03, 0.04, 0.05, 0.07, 0.10)
+PCPNET_SHAPES = ("cube100k", "fandisk100k", "bunny100k", "armadillo100k")
+PCPNET_NOISE = (0.0, 0.0012, 0.006, 0.012)
+QUERY_SEED, NOISE_SEED = 0, 1
+HEATMAP = ("fandisk100k", 0.012)
+#: --quick: two validation shapes at two noise levels, two noise levels on PCPNet; for tests only.
+QUICK_VAL_SHAPES, QUICK_NOISE, QUICK_POINTS = ("v_notch_block", "ellipsoid_flat"), (0.0, 0.01), 5000
+QUICK_PCPNET_NOISE = (0.0, 0.012)
+
+
+@dataclass
+class CloudResult:
+    """Scores of the three contenders on one cloud, and per-point angles for the heat map and the intervals."""
+
+    shape: str
+    kind: str
+    noise: float
+    queries: int
+    ours: tuple[float, float, int]  # MSAE, RMSE°, NaN count
+    pca: tuple[float, float, int]
+    best: tuple[float, float, float]  # MSAE, RMSE°, radius (fraction of the diagonal)
+    angles: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)  # ours, PCA 5%: rad per point
+    points: np.ndarray | None = field(default=None, repr=False)  # the query points, kept where a heat map may be drawn
+
+
+class Contenders:
+    """The learned estimator and a PCA estimator, reused across clouds (the checkpoint is loaded once)."""
+
+    def __init__(self, checkpoint: str | None, device: str) -> None:
+        from ..core.estimator import NormalEstimator
+
+        self.ours = NormalEstimator("learned", radius=RADIUS_FRACTION, checkpoint=checkpoint, device=device)
+        self.pca = NormalEstimator("pca", radius=RADIUS_FRACTION, device=device)
+        self.pca_pool = POOL_FACTOR * self.ours.k
+
+    def score(self, points: np.ndarray, gt: np.ndarray, query: np.ndarray, diag: float) -> tuple:
+        """(ours, pca@5%, best pca) scores and the per-point angles of ours and PCA 5% on one cloud; `gt` is (M, 3)
+        at `query`."""
+        self.ours.radius = RADIUS_FRACTION * diag
+        ours, _ = self.ours.estimate(points, query)
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(points[np.isfinite(points).all(axis=1)])
+        grid = {r: self._pca(points, query, r * diag, tree) for r in PCA_GRID}
+        best = min(grid, key=lambda r: msae(grid[r], gt))
+        pca = grid[RADIUS_FRACTION]
+        angles = (angles_rad(ours, gt), angles_rad(pca, gt))
+        return (
+            _scores(ours, angles[0]),
+            _scores(pca, angles[1]),
+            (msae(grid[best], gt), rmse_deg(grid[best], gt), best),
+            angles,
+        )
+
+    def _pca(self, points: np.ndarray, query: np.ndarray, radius: float, tree) -> np.ndarray:
+        """PCA over the whole ball: the pool is sized to the largest ball among the queries, capped at 4k."""
+        counts = tree.query_ball_point(points[query], radius, return_length=True, workers=-1)
+        self.pca.radius, self.pca.k = radius, int(np.clip(np.max(counts, initial=3), 3, self.pca_pool))
+        return self.pca.estimate(points, query)[0]
+
+
+def _scores(pred: np.ndarray, angles: np.ndarray) -> tuple[float, float, int]:
+    """MSAE, RMSE° and NaN count from per-point angles (`metrics.angles_rad`), computed once per method."""
+    mse = float(np.mean(angles**2))
+    return mse, float(np.degrees(np.sqrt(mse))), invalid_count(pred)
+
+
+def query_indices(n: int, count: int) -> np.ndarray:
+    """The fixed query subset: numpy.random.default_rng(0).choice(n, count, replace=False), sorted."""
+    return np.sort(np.random.default_rng(QUERY_SEED).choice(n, min(n, count), replace=False))
+
+
+# ---------------------------------------------------------------- data sets
+
+
+def validation_clouds(quick: bool):
+    """The generated validation split (shapes never trained on), every noise level; normalised to diagonal 1."""
+    from ..training.dataset import NOISE_LEVELS, build_dataset
+
+    if quick:
+        return build_dataset(
+            "val", n_points=QUICK_POINTS, shapes=QUICK_VAL_SHAPES, noise_levels=QUICK_NOISE, progress=False
+        )
+    return build_dataset("val", n_points=100_000, noise_levels=NOISE_LEVELS, progress=False)
+
+
+def pcpnet_shapes(directory: Path, quick: bool) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(name, points, normals) of the PCPNet shapes; all four are required unless --quick."""
+    if not directory.is_dir():
+        raise CloudFileError(f"{directory}: PCPNet directory not found (pass --pcpnet-dir)")
+    names = [s for s in PCPNET_SHAPES if (directory / f"{s}.xyz").is_file()]
+    missing = sorted(set(PCPNET_SHAPES) - set(names))
+    if (missing and not quick) or not names:
+        raise CloudFileError(f"{directory}: missing PCPNet shape(s) {', '.join(missing)} (.xyz + .normals)")
+    shapes = []
+    for name in names:
+        points = read_points(directory / f"{name}.xyz")
+        normals = read_normals_file(directory / f"{name}.normals")
+        if len(normals) != len(points):
+            raise CloudFileError(f"{directory / name}: {len(points)} points but {len(normals)} normals")
+        shapes.append((name, points, normals))
+    return shapes
+
+
+def pcpnet_noisy(points: np.ndarray, sigma_rel: float, diag: float) -> np.ndarray:
+    """Gaussian noise with sigma = sigma_rel × the clean bbox diagonal, one fixed draw per shape (common to levels)."""
+    unit = np.random.default_rng(NOISE_SEED).standard_normal(points.shape)
+    return points + sigma_rel * diag * unit
+
+
+# ---------------------------------------------------------------- runs
+
+
+def evaluate_validation(contenders: Contenders, per_cloud: int, quick: bool) -> list[CloudResult]:
+    from tqdm import tqdm
+
+    results = []
+    for cloud in tqdm(validation_clouds(quick), desc="eval val", unit="cloud", disable=None, file=sys.stderr):
+        points = np.asarray(cloud.points, dtype=np.float64)
+        query = query_indices(len(points), per_cloud)
+        ours, pca, best, angles = contenders.score(points, cloud.normals[query], query, bbox_diagonal(points))
+        results.append(CloudResult(cloud.name, cloud.kind, cloud.noise, len(query), ours, pca, best, angles))
+    return results
+
+
+def evaluate_pcpnet(contenders: Contenders, directory: Path, per_cloud: int, quick: bool) -> list[CloudResult]:
+    from tqdm import tqdm
+
+    shapes = pcpnet_shapes(directory, quick)
+    levels = QUICK_PCPNET_NOISE if quick else PCPNET_NOISE
+    jobs = [(shape, level) for shape in shapes for level in levels]
+    results = []
+    for (name, clean, normals), level in tqdm(jobs, desc="eval pcpnet", unit="cloud", disable=None, file=sys.stderr):
+        diag = bbox_diagonal(clean)
+        points = pcpnet_noisy(clean, level, diag)
+        query = query_indices(len(points), per_cloud)
+        ours, pca, best, angles = contenders.score(points, normals[query], query, diag)
+        kind = "cad" if name in ("cube100k", "fandisk100k") else "smooth"
+        results.append(CloudResult(name, kind, level, len(query), ours, pca, best, angles, points[query]))
+    return results
+
+
+def run(
+    checkpoint: str | None,
+    device: str,
+    points_per_cloud: int,
+    pcpnet_dir: Path,
+    out: Path | None,
+    quick: bool,
+    command: str,
+) -> None:
+    """Both data sets: tables to stdout and, with `out`, into that markdown file plus the fandisk heat map."""
+    from .report import update_section
+
+    per_cloud = min(points_per_cloud, 200) if quick else points_per_cloud
+    if not quick:
+        pcpnet_shapes_present(pcpnet_dir)
+    contenders = Contenders(checkpoint, device)
+    header = _header(command, checkpoint, quick, contenders, per_cloud)
+
+    start = time.perf_counter()
+    val = evaluate_validation(contenders, per_cloud, quick)
+    val_md = validation_markdown(val, header, time.perf_counter() - start)
+    print(val_md)
+    if out is not None:
+        update_section(out, "eval-val", val_md)
+
+    start = time.perf_counter()
+    pcp = evaluate_pcpnet(contenders, pcpnet_dir, per_cloud, quick)
+    docs = Path(out).parent if out is not None else None
+    image = _heatmap(pcp, docs / "images" / "heatmap_fandisk.png") if docs is not None else None
+    pcp_md = pcpnet_markdown(pcp, header, time.perf_counter() - start, image, docs)
+    print(pcp_md)
+    if out is not None:
+        update_section(out, "eval-pcpnet", pcp_md)
+
+
+def pcpnet_shapes_present(directory: Path) -> None:
+    """Fail before the long validation run, not after it, when the PCPNet files are missing."""
+    missing = [s for s in PCPNET_SHAPES if not (directory / f"{s}.xyz").is_file()]
+    if missing:
+        raise CloudFileError(f"{directory}: missing PCPNet shape(s) {', '.join(missing)} (pass --pcpnet-dir)")
+
+
+def _heatmap(results: list[CloudResult], path: Path) -> tuple[Path, CloudResult] | None:
+    """Fandisk at 1.2% (or, in a --quick subset without it, the noisiest cloud of the first shape)."""
+    from .plots import error_heatmap
+
+    chosen = next((r for r in results if (r.shape, r.noise) == HEATMAP), None)
+    chosen = chosen or max((r for r in results if r.shape == results[0].shape), key=lambda r: r.noise)
+    ours, pca = (np.degrees(a) for a in chosen.angles)
+    errors = {"PCA (r = 5%)": pca, "ours (r = 5%)": ours}
+    title = f"{chosen.shape}, noise {chosen.noise * 100:g}% of the diagonal: angular error per query point"
+    return error_heatmap(path, chosen.points, errors, title, vmax=60.0), chosen
+
+
+# ---------------------------------------------------------------- markdown
+
+
+def _header(command: str, checkpoint: str | None, quick: bool, contenders: Contenders, per_cloud: int) -> str:
+    meta = contenders.ours.metadata
+    trained_by = meta.get("training", {}).get("command") if isinstance(meta.get("training"), dict) else None
+    lines = [
+        f"Command: `{command}`" + (" (**--quick subset: not a result**)" if quick else ""),
+        f"Checkpoint: `{checkpoint or 'shipped default'}` (sha256 {_sha256(checkpoint)[:12]}, "
+        f"k = {contenders.ours.k}"
+        + (f", trained by `{trained_by}`" if trained_by else "")
+        + f") · device {contenders.ours.device} · {per_cloud} query points per cloud, fixed seed "
+        f"(`default_rng({QUERY_SEED}).choice`), neighbourhoods from the whole cloud · {time.strftime('%Y-%m-%d')}",
+        "",
+        "MSAE = mean squared angle (rad²), RMSE = sqrt(mean squared angle) (degrees), both sign-invariant; "
+        "a NaN prediction (< 3 neighbours) counts as 90°. *PCA best* is an **oracle**: the radius of "
+        f"{', '.join(f'{r * 100:g}' for r in PCA_GRID)}% of the diagonal with the lowest MSAE, chosen per cloud "
+        "against the ground truth. PCA uses every point of the ball up to the learned method's pool (4k nearest).",
+    ]
+    return "\n".join(lines)
+
+
+def _sha256(checkpoint: str | None) -> str:
+    import hashlib
+
+    from ..core.checkpoint import resolve_checkpoint
+
+    return hashlib.sha256(resolve_checkpoint(checkpoint).read_bytes()).hexdigest()
+
+
+def _row(r: CloudResult) -> str:
+    return (
+        f"| {r.shape} | {r.kind} | {r.noise * 100:g} | {r.ours[0]:.4f} | {r.pca[0]:.4f} | {r.best[0]:.4f} "
+        f"({r.best[2] * 100:g}%) | {r.ours[1]:.2f} | {r.pca[1]:.2f} | {r.best[1]:.2f} | {r.ours[2]} / {r.pca[2]} |"
+    )
+
+
+_TABLE_HEAD = (
+    "| shape | kind | noise % | ours MSAE | PCA 5% MSAE | PCA best MSAE (r) | ours RMSE° | PCA 5% RMSE° "
+    "| PCA best RMSE° | NaN ours / PCA |\n| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"
+)
+
+
+def _averages(results: list[CloudResult]) -> str:
+    """Mean scores per (kind, noise level), then per kind over all noise levels."""
+    groups: dict[tuple[str, str], list[CloudResult]] = {}
+    for r in sorted(results, key=lambda r: (r.kind, r.noise)):
+        groups.setdefault((r.kind, f"{r.noise * 100:g}"), []).append(r)
+    for r in sorted(results, key=lambda r: r.kind):
+        groups.setdefault((r.kind, "all"), []).append(r)
+    lines = [
+        "| kind | noise % | clouds | ours MSAE | PCA 5% MSAE | PCA best MSAE | ours RMSE° | PCA 5% RMSE° "
+        "| ours / PCA 5% (MSAE) |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for (kind, noise), rs in groups.items():
+        o, p, b = (float(np.mean([getattr(r, a)[0] for r in rs])) for a in ("ours", "pca", "best"))
+        orm, prm = (float(np.mean([getattr(r, a)[1] for r in rs])) for a in ("ours", "pca"))
+        lines.append(
+            f"| {kind} | {noise} | {len(rs)} | {o:.4f} | {p:.4f} | {b:.4f} | {orm:.2f} | {prm:.2f} | {o / p:.2f} |"
+        )
+    return "\n".join(lines)
+
+
+def _mean(results: list[CloudResult], which: str, metric: int, keep) -> float:
+    values = [getattr(r, which)[metric] for r in results if keep(r)]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def _interval(results: list[CloudResult], keep, digits: int) -> str:
+    """', 95% CI lo-hi' for the ours / PCA MSAE ratio over the kept clouds, or '' without per-point angles."""
+    pairs = [(ours**2, pca**2) for ours, pca in (r.angles for r in results if keep(r) and r.angles is not None)]
+    if not pairs:
+        return ""
+    lo, hi = ratio_interval(pairs)
+    return f", 95% CI {lo:.{digits}f}-{hi:.{digits}f}"
+
+
+def validation_markdown(results: list[CloudResult], header: str, seconds: float) -> str:
+    cad_noisy = lambda r: r.kind == "cad" and r.noise in (0.005, 0.01)  # noqa: E731
+    smooth = lambda r: r.kind == "smooth"  # noqa: E731
+    cad_ratio = _mean(results, "ours", 0, cad_noisy) / _mean(results, "pca", 0, cad_noisy)
+    smooth_ratio = _mean(results, "ours", 0, smooth) / _mean(results, "pca", 0, smooth)
+    cad_ci, smooth_ci = _interval(results, cad_noisy, 2), _interval(results, smooth, 3)
+    return "\n".join(
+        [
+            "## Accuracy on the validation set (`triplet-normal eval`)",
+            "",
+            header,
+            f"Wall time {seconds / 60:.1f} min for {len(results)} clouds.",
+            "",
+            *_TARGETS_HEAD,
+            f"| noisy CAD (0.5%, 1%): ours MSAE ≤ 0.25 × PCA 5% | ours / PCA = {cad_ratio:.2f} (mean MSAE ratio"
+            f"{cad_ci}) | {_met(cad_ratio <= 0.25)} |",
+            f"| smooth shapes: no worse than PCA 5% | ours / PCA = {smooth_ratio:.3f}{smooth_ci} "
+            f"| {_met(smooth_ratio <= 1.0)} |",
+            "",
+            "Intervals: 95% paired bootstrap over the query points of each cloud (1000 draws): the sampling error of "
+            "the fixed query subset, not of the choice of shapes or noise draws.",
+            "",
+            "### Averages per kind and noise level",
+            "",
+            _averages(results),
+            "",
+            "### Per cloud",
+            "",
+            _TABLE_HEAD,
+            *(_row(r) for r in results),
+        ]
+    )
+
+
+def pcpnet_markdown(
+    results: list[CloudResult],
+    header: str,
+    seconds: float,
+    image: tuple[Path, CloudResult] | None,
+    doc_dir: Path | None,
+) -> str:
+    targets = []
+    for level in (0.006, 0.012):
+        at = lambda r, level=level: r.noise == level  # noqa: E731
+        ours, pca = _mean(results, "ours", 1, at), _mean(results, "pca", 1, at)
+        wins = sum(r.ours[1] < r.pca[1] for r in results if at(r))
+        total = sum(at(r) for r in results)
+        if total:
+            targets.append(
+                f"| RMSE below PCA 5% at {level * 100:g}% noise | ours {ours:.2f}° vs PCA {pca:.2f}° (mean of "
+                f"{total} shape(s); lower on {wins}/{total}) | {_met(ours < pca)} |"
+            )
+    lines = [
+        "## Accuracy on the PCPNet shapes (`triplet-normal eval`)",
+        "",
+        header,
+        f"Noise: Gaussian, sigma = 0, 0.12, 0.6, 1.2% of the clean bbox diagonal, one fixed draw per shape "
+        f"(`default_rng({NOISE_SEED}).standard_normal`, scaled per level). Test data only: never trained or tuned on. "
+        f"Wall time {seconds / 60:.1f} min for {len(results)} clouds.",
+        "",
+        *_TARGETS_HEAD,
+        *targets,
+        "",
+        "### Per cloud",
+        "",
+        _TABLE_HEAD,
+        *(_row(r) for r in results),
+    ]
+    if image is not None:
+        path, chosen = image
+        rel = path.relative_to(doc_dir) if path.is_relative_to(doc_dir) else path
+        lines += [
+            "",
+            f"### Error heat map: {chosen.shape} at {chosen.noise * 100:g}% noise",
+            "",
+            f"![PCA vs ours, angular error in degrees]({rel.as_posix()})",
+            "",
+            f"Colour = sign-invariant angular error (degrees, scale clipped at 60°) at the {chosen.queries} "
+            "query points; left PCA at r = 5%, right ours at r = 5%.",
+        ]
+    return "\n".join(lines)
+
+
+_TARGETS_HEAD = ("### Targets", "", "| target | measured | met |", "| --- | --- | --- |")
+
+
+def _met(ok: bool) -> str:
+    return "yes" if ok else "**no**"

@@ -1,0 +1,300 @@
+"""The ROS 2 node ``triplet_normal``: PointCloud2 in, the same cloud plus normals and curvature out.
+
+A thin wrapper around :class:`NormalEstimator`. The subscription callback only drops the message into a latest-only
+:class:`Mailbox`; one worker thread estimates and publishes, so a slow estimator skips clouds instead of queueing
+them. See docs/NODE.md for threading, reloads, errors and shutdown.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+import time
+from typing import Any, NoReturn
+
+import numpy as np
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.exceptions import ParameterException
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.logging import get_logger
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import PointCloud2
+
+from ..core.estimator import NormalEstimator
+from ..core.orientation import orient_towards_viewpoint
+from ..errors import CheckpointError, CloudFormatError, EstimationCancelled, EstimatorError
+from ..io.pointcloud2 import empty_with_normals, read_xyz, with_normals
+from .mailbox import Mailbox
+from .params import SPECS, NodeSettings, ParamSpec, apply, needs_reload, validate_all
+from .stats import ProcessingStats
+
+NODE_NAME = "triplet_normal"
+#: Output history: reliable, but shallow, so a slow subscriber cannot make the node hoard clouds.
+OUTPUT_DEPTH = 2
+#: Seconds between repeats of the same error or warning in the log.
+THROTTLE_S = 5.0
+#: How long shutdown waits for the worker; the estimator checks its cancel event between batches.
+JOIN_TIMEOUT_S = 1.5
+
+_PARAM_TYPES = {
+    str: Parameter.Type.STRING,
+    int: Parameter.Type.INTEGER,
+    float: Parameter.Type.DOUBLE,
+    bool: Parameter.Type.BOOL,
+    list: Parameter.Type.DOUBLE_ARRAY,
+}
+
+
+class StartupError(RuntimeError):
+    """The node cannot start (bad parameter, missing or corrupt checkpoint); main() prints it and exits 1."""
+
+
+def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    d = ParameterDescriptor(
+        name=spec.name,
+        type=_PARAM_TYPES[spec.kind].value,
+        description=spec.description,
+        additional_constraints=spec.constraints,
+        read_only=spec.read_only,
+    )
+    if spec.bounds is not None and spec.kind is int:
+        d.integer_range = [IntegerRange(from_value=int(spec.bounds[0]), to_value=int(spec.bounds[1]), step=1)]
+    elif spec.bounds is not None:
+        d.floating_point_range = [FloatingPointRange(from_value=spec.bounds[0], to_value=spec.bounds[1], step=0.0)]
+    return d
+
+
+def _reason(error: ParameterException) -> str:
+    """rclpy's parameter exceptions carry (message, name) in args; make one readable line of them."""
+    message, *names = (str(a) for a in error.args)
+    return f"parameter {', '.join(names)}: {message}" if names else message
+
+
+def _failure(reason: str) -> SetParametersResult:
+    return SetParametersResult(successful=False, reason=reason)
+
+
+class TripletNormalNode(Node):
+    """Subscribes to ``input``, publishes ``output``; raises StartupError when it cannot run."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        settings = self._declare_parameters()
+        estimator = self._build(settings, StartupError)
+        if settings.k != estimator.k:
+            settings = apply(settings, {"k": estimator.k})
+            self.set_parameters([Parameter("k", value=estimator.k)])
+        self._active: tuple[NormalEstimator, NodeSettings] = (estimator, settings)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self._mailbox: Mailbox[PointCloud2] = Mailbox()
+        self._stats = ProcessingStats()
+        self._cancel = threading.Event()
+        self._publisher = self.create_publisher(
+            PointCloud2,
+            "output",
+            QoSProfile(depth=OUTPUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE),
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+        )
+        self._subscription = self.create_subscription(
+            PointCloud2,
+            "input",
+            self._mailbox.put,
+            qos_profile_sensor_data,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            callback_group=MutuallyExclusiveCallbackGroup(),
+        )
+        self._stats_timer = self.create_timer(settings.stats_period, self._log_stats)
+        self._worker = threading.Thread(target=self._work, name="triplet_normal_worker", daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f"ready: {self._subscription.topic_name} -> {self._publisher.topic_name}, {self._describe(*self._active)}"
+        )
+
+    # -- parameters -------------------------------------------------------------------------------------------------
+
+    def _declare_parameters(self) -> NodeSettings:
+        """Declare every parameter with its descriptor; ``k`` has no static default (it comes from the checkpoint)."""
+        values: dict[str, Any] = {}
+        try:
+            for spec in SPECS:
+                default = _PARAM_TYPES[int] if spec.name == "k" else spec.default
+                value = self.declare_parameter(spec.name, default, _descriptor(spec)).value
+                if value is not None:
+                    values[spec.name] = value
+        except ParameterException as error:
+            raise StartupError(_reason(error)) from None
+        reason = validate_all(values)
+        if reason:
+            raise StartupError(reason)
+        return apply(NodeSettings(), values)
+
+    def _build(self, settings: NodeSettings, error_type: type[Exception]) -> NormalEstimator:
+        try:
+            return NormalEstimator(**settings.estimator_args())
+        except (CheckpointError, EstimatorError) as error:
+            raise error_type(str(error)) from None
+        except RuntimeError as error:  # torch itself, e.g. CUDA out of memory while moving the model
+            raise error_type(f"could not build the estimator: {error}") from None
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        """Validate; rebuild the estimator for method/checkpoint/device; swap in one assignment for the next cloud."""
+        values = {p.name: p.value for p in params}
+        reason = validate_all(values)
+        if reason:
+            return _failure(reason)
+        estimator, settings = self._active
+        new_settings = apply(settings, values)
+        if needs_reload(values):
+            try:
+                estimator = self._build(new_settings, ValueError)
+            except ValueError as error:
+                return _failure(f"kept the running estimator: {error}")
+            self.get_logger().info(f"reloaded: {self._describe(estimator, new_settings)}")
+        self._active = (estimator, new_settings)
+        return SetParametersResult(successful=True)
+
+    @staticmethod
+    def _describe(estimator: NormalEstimator, s: NodeSettings) -> str:
+        source = "" if s.method == "pca" else f", checkpoint={s.checkpoint or 'default'}"
+        return (
+            f"method={s.method}{source}, device={estimator.device}, radius={s.radius:g} m, k={s.k}, "
+            f"batch_size={s.batch_size}, orient={s.orient}, viewpoint={list(s.viewpoint)}"
+        )
+
+    # -- worker -----------------------------------------------------------------------------------------------------
+
+    def _work(self) -> None:
+        """Take the newest cloud, estimate, publish; bad clouds are logged and skipped, never fatal."""
+        log = self.get_logger()
+        while (msg := self._mailbox.get()) is not None:
+            try:
+                self._process(msg)
+            except (CloudFormatError, EstimatorError) as error:
+                self._stats.reject()
+                log.error(f"skipped a malformed cloud: {error}", throttle_duration_sec=THROTTLE_S)
+            except EstimationCancelled:
+                return
+            except Exception as error:  # the worker must outlive any one cloud; shutdown races end here too
+                if self._cancel.is_set():
+                    return
+                log.error(f"failed on a cloud: {type(error).__name__}: {error}", throttle_duration_sec=THROTTLE_S)
+
+    def _process(self, msg: PointCloud2) -> None:
+        start = time.perf_counter()
+        estimator, settings = self._active
+        if msg.height * msg.width == 0:
+            out = empty_with_normals(msg)
+        else:
+            points = read_xyz(msg)
+            normals, curvature = self._estimate(estimator, settings, points)
+            out = with_normals(msg, normals, curvature)
+        self._publisher.publish(out)
+        self._stats.record((time.perf_counter() - start) * 1e3)
+
+    def _estimate(
+        self, estimator: NormalEstimator, s: NodeSettings, points: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Normals and curvature for every point; NaN rows where xyz is not finite or the ball is too sparse."""
+        if not np.isfinite(points).all(axis=1).any():
+            self.get_logger().warning(
+                "cloud has no finite points; publishing NaN normals", throttle_duration_sec=THROTTLE_S
+            )
+            return np.full((len(points), 3), np.nan, np.float32), np.full(len(points), np.nan, np.float32)
+        estimator.radius, estimator.k, estimator.batch_size = s.radius, s.k, s.batch_size
+        # Holes (non-finite xyz) are skipped by the estimator itself and come back as NaN rows.
+        normals, curvature = estimator.estimate(points, cancel=self._cancel)
+        if s.orient:
+            normals = orient_towards_viewpoint(points, normals, s.viewpoint)
+        return normals, curvature
+
+    def _log_stats(self) -> None:
+        settings = self._active[1]
+        self.get_logger().info(self._stats.report(settings.stats_period, self._mailbox.dropped))
+
+    # -- shutdown ---------------------------------------------------------------------------------------------------
+
+    def stop(self, timeout: float = JOIN_TIMEOUT_S) -> bool:
+        """Cancel the estimate in flight, close the mailbox and join the worker; False if it did not finish in time."""
+        self._cancel.set()
+        self._mailbox.close()
+        self._worker.join(timeout)
+        return not self._worker.is_alive()
+
+
+def _install_stop_handlers(stop: threading.Event) -> None:
+    """SIGINT and SIGTERM only set ``stop``: the spin loop notices within one spin timeout and shuts down in order."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+
+
+def _spin(node: TripletNormalNode, stop: threading.Event) -> None:
+    executor = MultiThreadedExecutor(num_threads=2)
+    executor.add_node(node)
+    try:
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        executor.shutdown(timeout_sec=0.5)
+
+
+def main(args: list[str] | None = None) -> NoReturn:
+    """Console entry point ``node``: exit 0 after a signal-driven shutdown, 1 when the node cannot start."""
+    _exit_now(_run(args))
+
+
+def _run(args: list[str] | None) -> int:
+    stop = threading.Event()
+    _install_stop_handlers(stop)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as error:  # rcl rejects malformed --ros-args with its own exception type
+        print(f"[FATAL] [{NODE_NAME}]: cannot start: {error}", file=sys.stderr)
+        return 1
+    node: TripletNormalNode | None = None
+    try:
+        node = TripletNormalNode()
+        _spin(node, stop)
+        return 0
+    except StartupError as error:
+        get_logger(NODE_NAME).fatal(f"cannot start: {error}")
+        return 1
+    except (RuntimeError, ValueError) as error:  # e.g. rclpy rejecting a QoS override given on the command line
+        get_logger(NODE_NAME).fatal(f"cannot start: {error}")
+        return 1
+    finally:
+        if node is not None:
+            _shut_down(node)
+        rclpy.try_shutdown()
+
+
+def _shut_down(node: TripletNormalNode) -> None:
+    """Cancel and join the worker, then destroy the node; a worker stuck in an uncancellable step is left behind."""
+    if node.stop():
+        node.get_logger().info("shut down")
+        node.destroy_node()
+    else:
+        node.get_logger().warning(f"worker still busy after {JOIN_TIMEOUT_S} s; exiting without waiting for it")
+
+
+def _exit_now(code: int) -> NoReturn:
+    """Leave without interpreter teardown, everything of ours being released already.
+
+    torch's and the DDS library's static destructors take 1-2 s on a busy 2-core CPU, which alone would break the
+    promise to exit within 2 s of SIGINT/SIGTERM; and tearing down under a worker stuck inside torch aborts.
+    """
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,173 @@
+"""The node's parameters as plain data plus their validation, so both are testable without rclpy.
+
+The node turns each :class:`ParamSpec` into a ``ParameterDescriptor`` (type, range, description) and calls
+:func:`validate` from its on-set callback; the reason string goes back to whoever tried to set the parameter.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+from ..core.conventions import METHODS
+from ..core.device import validate_device_name
+
+#: Parameters whose change builds a new estimator (loading the checkpoint); the rest apply to the next cloud in place.
+RELOAD_PARAMS = frozenset({"method", "checkpoint", "device"})
+
+#: Value of ``k`` that means "the estimator's default" (the checkpoint's k, 500 for pca) in :class:`NodeSettings`.
+K_FROM_CHECKPOINT = 0
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One declared parameter: ``kind`` is the Python type rclpy infers, ``bounds`` an inclusive (lo, hi) range."""
+
+    name: str
+    kind: type
+    default: Any
+    description: str
+    bounds: tuple[float, float] | None = None
+    constraints: str = ""
+    read_only: bool = False
+
+
+SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec(
+        "method", str, "learned", "Normal estimator: 'learned' (triplet network) or 'pca'.", None, "learned | pca"
+    ),
+    ParamSpec(
+        "checkpoint",
+        str,
+        "",
+        "Path of a .safetensors checkpoint for method 'learned'; empty means the shipped default.",
+    ),
+    ParamSpec(
+        "device",
+        str,
+        "auto",
+        "Torch device; 'auto' takes the GPU when torch sees one.",
+        None,
+        "auto | cpu | cuda | cuda:N",
+    ),
+    ParamSpec("batch_size", int, 256, "Patches per forward pass of the learned method.", (1, 1 << 20)),
+    ParamSpec("radius", float, 0.03, "Neighbourhood ball radius in metres (> 0).", (1e-4, 100.0)),
+    ParamSpec("k", int, 500, "Points per patch (>= 3); the default comes from the checkpoint, else 500.", (3, 100_000)),
+    ParamSpec("orient", bool, True, "Flip normals toward 'viewpoint' (PCL's flipNormalTowardsViewpoint)."),
+    ParamSpec(
+        "viewpoint",
+        list,
+        [0.0, 0.0, 0.0],
+        "[x, y, z] in the cloud's frame that normals face when 'orient' is true; the origin is the depth sensor.",
+        None,
+        "three finite floats",
+    ),
+    ParamSpec("stats_period", float, 5.0, "Seconds between info-level processing statistics.", (0.1, 3600.0), "", True),
+)
+
+SPEC_BY_NAME: dict[str, ParamSpec] = {s.name: s for s in SPECS}
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    """A validated snapshot of every parameter; the worker reads one snapshot per cloud, so updates never tear."""
+
+    method: str = "learned"
+    checkpoint: str = ""
+    device: str = "auto"
+    batch_size: int = 256
+    radius: float = 0.03
+    k: int = K_FROM_CHECKPOINT
+    orient: bool = True
+    viewpoint: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    stats_period: float = 5.0
+
+    def estimator_args(self) -> dict[str, Any]:
+        """Keyword arguments for ``NormalEstimator``; k=None lets the estimator take the checkpoint's k."""
+        return {
+            "method": self.method,
+            "radius": self.radius,
+            "k": self.k if self.k != K_FROM_CHECKPOINT else None,
+            "checkpoint": self.checkpoint or None,
+            "device": self.device,
+            "batch_size": self.batch_size,
+        }
+
+
+def _check_type(spec: ParamSpec, value: Any) -> str | None:
+    if spec.kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return None
+    if spec.kind is int and isinstance(value, bool):
+        return f"{spec.name} must be an integer, got {value!r}"
+    if not isinstance(value, spec.kind):
+        return f"{spec.name} must be {spec.kind.__name__}, got {type(value).__name__} {value!r}"
+    return None
+
+
+def _check_bounds(spec: ParamSpec, value: float) -> str | None:
+    if spec.bounds is None:
+        return None
+    lo, hi = spec.bounds
+    if not (math.isfinite(value) and lo <= value <= hi):
+        return f"{spec.name} must be in [{lo:g}, {hi:g}], got {value!r}"
+    return None
+
+
+def _check_value(name: str, value: Any) -> str | None:
+    if name == "method" and value not in METHODS:
+        return f"method must be one of {', '.join(METHODS)}, got {value!r}"
+    if name == "device":
+        return validate_device_name(value)
+    if name == "radius" and not value > 0:
+        return f"radius must be > 0 metres, got {value!r}"
+    if name == "viewpoint" and not _is_point(value):
+        return f"viewpoint must be three finite numbers [x, y, z], got {list(value)!r}"
+    return None
+
+
+def _is_point(value: list) -> bool:
+    return len(value) == 3 and all(isinstance(v, int | float) and math.isfinite(v) for v in value)
+
+
+def validate(name: str, value: Any) -> str | None:
+    """Why ``value`` is not acceptable for parameter ``name``, or None; unknown names are not ours and pass."""
+    spec = SPEC_BY_NAME.get(name)
+    if spec is None:
+        return None
+    if spec.kind is list and not isinstance(value, str):
+        try:
+            value = list(value)
+        except TypeError:
+            return f"{name} must be a list, got {value!r}"
+    return _check_type(spec, value) or _check_bounds(spec, value) or _check_value(name, value)
+
+
+def validate_all(values: Mapping[str, Any]) -> str | None:
+    """The first reason among ``values``, or None when all are acceptable."""
+    for name, value in values.items():
+        reason = validate(name, value)
+        if reason:
+            return reason
+    return None
+
+
+def apply(settings: NodeSettings, values: Mapping[str, Any]) -> NodeSettings:
+    """A new snapshot with ``values`` (already validated) applied; unknown names are ignored."""
+    known: dict[str, Any] = {}
+    for name, value in values.items():
+        if name not in SPEC_BY_NAME:
+            continue
+        spec = SPEC_BY_NAME[name]
+        if name == "viewpoint":
+            value = tuple(float(v) for v in value)
+        elif spec.kind is float:
+            value = float(value)
+        known[name] = value
+    return replace(settings, **known)
+
+
+def needs_reload(values: Mapping[str, Any]) -> bool:
+    """Whether applying ``values`` means building a new estimator rather than editing the running one."""
+    return not RELOAD_PARAMS.isdisjoint(values)

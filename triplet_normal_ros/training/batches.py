@@ -1,0 +1,90 @@
+"""Training batches from generated clouds: anchor/positive/negative patches (phase a) and patches with their
+ground-truth normals (phase b), all through the same `build_patches` that inference uses."""
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from ..core.conventions import POOL_FACTOR, bbox_diagonal
+from ..core.neighbours import NeighbourIndex
+from ..core.patches import Patches, build_patches
+from .triplets import mine_triplets
+
+
+@dataclass
+class TripletSet:
+    anchor: torch.Tensor  # (n, k, 3)
+    positive: torch.Tensor
+    negative: torch.Tensor
+
+
+@dataclass
+class NormalSet:
+    patches: torch.Tensor  # (n, k, 3) patch frame
+    centre_normal: torch.Tensor  # (n, 3) ground truth in the patch frame
+    patch_normals: torch.Tensor  # (n, k, 3) ground truth of the k points fed to the network, patch frame
+
+
+class CloudSampler:
+    """One training cloud, its KD-tree and its radius (radius_rel × its bounding-box diagonal, as at inference)."""
+
+    def __init__(self, points: np.ndarray, normals: np.ndarray, radius_rel: float, k: int) -> None:
+        self.points = np.asarray(points, dtype=np.float64)
+        self.normals = np.asarray(normals, dtype=np.float64)
+        self.index = NeighbourIndex(self.points)
+        self.radius = radius_rel * bbox_diagonal(self.points)
+        self.k = k
+        self.cloud = torch.from_numpy(self.points)
+
+    def patches(self, centres: np.ndarray, generator: torch.Generator, rotation=None) -> Patches:
+        pool, _ = self.index.ball(self.points[centres], self.radius, POOL_FACTOR * self.k)
+        return build_patches(
+            self.cloud, self.cloud[centres], torch.from_numpy(pool), self.radius, self.k, generator, rotation
+        )
+
+    def local_normals(self, patches: Patches, indices: torch.Tensor) -> torch.Tensor:
+        """Ground-truth normals of `indices` ((n,) or (n, k)) expressed in each patch's frame."""
+        world = torch.from_numpy(self.normals)[indices]
+        if world.ndim == 2:
+            return torch.einsum("bij,bj->bi", patches.rotation, world).float()
+        return (world @ patches.rotation.transpose(1, 2)).float()
+
+    def triplets(self, n: int, rng: np.random.Generator, generator: torch.Generator) -> TripletSet:
+        anchors = rng.choice(
+            np.flatnonzero(self.index.finite), size=min(n, int(self.index.finite.sum())), replace=False
+        )
+        positive, negative = mine_triplets(self.index, self.normals, anchors, self.radius, rng, POOL_FACTOR * self.k)
+        keep = (positive >= 0) & (negative >= 0)
+        anchors, positive, negative = anchors[keep], positive[keep], negative[keep]
+        a = self.patches(anchors, generator)
+        s = self.patches(positive, generator, rotation=a.rotation)
+        t = self.patches(negative, generator, rotation=a.rotation)
+        ok = a.valid & s.valid & t.valid
+        return TripletSet(a.points[ok], s.points[ok], t.points[ok])
+
+    def normal_patches(self, n: int, rng: np.random.Generator, generator: torch.Generator) -> NormalSet:
+        centres = rng.choice(
+            np.flatnonzero(self.index.finite), size=min(n, int(self.index.finite.sum())), replace=False
+        )
+        p = self.patches(centres, generator)
+        ok = p.valid
+        centre_normal = self.local_normals(p, torch.from_numpy(centres))
+        patch_normals = self.local_normals(p, p.selected)
+        return NormalSet(p.points[ok], centre_normal[ok], patch_normals[ok])
+
+
+def collect_triplets(samplers: list[CloudSampler], per_cloud: int, seed: int, desc: str) -> TripletSet:
+    """One epoch of triplets, `per_cloud` anchors from every cloud, reproducible from `seed`."""
+    rng, generator = np.random.default_rng(seed), torch.Generator().manual_seed(seed)
+    parts = [s.triplets(per_cloud, rng, generator) for s in tqdm(samplers, desc=desc, unit="cloud", leave=False)]
+    return TripletSet(*(torch.cat([getattr(p, f) for p in parts]) for f in ("anchor", "positive", "negative")))
+
+
+def collect_normal_patches(samplers: list[CloudSampler], per_cloud: int, seed: int, desc: str) -> NormalSet:
+    rng, generator = np.random.default_rng(seed), torch.Generator().manual_seed(seed)
+    parts = [s.normal_patches(per_cloud, rng, generator) for s in tqdm(samplers, desc=desc, unit="cloud", leave=False)]
+    return NormalSet(
+        *(torch.cat([getattr(p, f) for p in parts]) for f in ("patches", "centre_normal", "patch_normals"))
+    )

@@ -1,0 +1,227 @@
+"""Seeded training / validation clouds with exact normals, Gaussian noise variants and an on-disk cache.
+
+Every cloud is normalised (translated so the bounding-box centre of the clean sample is the origin, scaled so its
+bounding-box diagonal is 1), so noise levels and patch radii mean the same thing on every shape, as in PCPNet and the
+paper. Noise moves points only: a noisy point keeps its clean point's normal (PCPNet's convention). The same seed
+gives the same bytes; see docs/TRAINING_DATA.md.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import warnings
+import zlib
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import TrainingError
+from .shapes import ShapeSpec, catalogue
+
+NOISE_LEVELS: tuple[float, ...] = (0.0, 0.0025, 0.005, 0.01, 0.015, 0.025)  # clean + the paper's five, × bbox diagonal
+CODE_VERSION = 1  # bump when sampling or a shape changes, so stale cache entries are never read
+CACHE_ENV = "TRIPLET_NORMAL_CACHE"
+HELDOUT_SHAPE = "v_notch_block"
+
+
+@dataclass
+class Cloud:
+    """One training / validation cloud: float32 (n, 3) points and unit normals in the normalised frame."""
+
+    name: str
+    kind: str
+    noise: float
+    points: np.ndarray
+    normals: np.ndarray
+
+
+def default_cache_dir() -> Path:
+    """$TRIPLET_NORMAL_CACHE, else ~/.cache/triplet_normal_ros/data."""
+    override = os.environ.get(CACHE_ENV)
+    return Path(override) if override else Path.home() / ".cache" / "triplet_normal_ros" / "data"
+
+
+def _seed(*parts: int | str) -> int:
+    """A stable 63-bit seed from ints and names (crc32), so each shape and noise level draws its own stream."""
+    words = [zlib.crc32(p.encode()) if isinstance(p, str) else int(p) for p in parts]
+    return int(np.random.SeedSequence(words).generate_state(2, np.uint64)[0] >> np.uint64(1))
+
+
+def sample_surface(spec: ShapeSpec, n_points: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Area-uniform float64 samples in the shape's own frame with exact unit normals (vectorised barycentric draw)."""
+    mesh = spec.mesh()
+    triangles = np.asarray(mesh.triangles, dtype=np.float64)
+    ab, ac = triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]
+    cross = np.cross(ab, ac)
+    area = np.linalg.norm(cross, axis=1)
+    face = rng.choice(len(area), size=n_points, p=area / area.sum())
+    u, v = rng.random(n_points), rng.random(n_points)
+    flip = u + v > 1  # reflect the unit square's upper half back into the triangle: uniform over it
+    u, v = np.where(flip, 1 - u, u), np.where(flip, 1 - v, v)
+    points = triangles[face, 0] + u[:, None] * ab[face] + v[:, None] * ac[face]
+    surface = spec.surface()
+    if surface is None:
+        return points, cross[face] / area[face, None]
+    return surface.snap(points)
+
+
+def normalise(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Centre the bounding box on the origin and scale its diagonal to 1; return (points, centre, diagonal)."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre, diagonal = (lo + hi) / 2, float(np.linalg.norm(hi - lo))
+    return (points - centre) / diagonal, centre, diagonal
+
+
+def sample_shape(spec: ShapeSpec, n_points: int = 100_000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """`n_points` clean surface samples of `spec`, normalised (bbox centred, diagonal 1); float32 points, normals."""
+    if n_points < 1:
+        raise ValueError(f"n_points must be positive, got {n_points}")
+    points, normals = sample_surface(spec, n_points, np.random.default_rng(seed))
+    points, _, _ = normalise(points)
+    return points.astype(np.float32), normals.astype(np.float32)
+
+
+def add_noise(points: np.ndarray, sigma_rel: float, seed: int) -> np.ndarray:
+    """Isotropic Gaussian noise with sigma = sigma_rel × the bounding-box diagonal of `points`; float32."""
+    if sigma_rel < 0:
+        raise ValueError(f"sigma_rel must be non-negative, got {sigma_rel}")
+    points = np.asarray(points, dtype=np.float64)
+    diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    noise = np.random.default_rng(seed).normal(scale=sigma_rel * diagonal, size=points.shape)
+    return (points + noise).astype(np.float32)
+
+
+def _cache_key(spec: ShapeSpec, n_points: int, seed: int) -> str:
+    blob = json.dumps([spec.name, spec.kind, spec.builder, spec.params, n_points, seed, CODE_VERSION], default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def _load(path: Path, n_points: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """A cached clean sample, or None when missing, truncated or of the wrong shape (it is then regenerated)."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            points, normals = data["points"], data["normals"]
+    except (OSError, ValueError, KeyError, EOFError, zlib.error):
+        return None
+    expected = (n_points, 3)
+    if points.shape != expected or normals.shape != expected or points.dtype != np.float32:
+        return None
+    return points, normals
+
+
+def _save(path: Path, points: np.ndarray, normals: np.ndarray) -> None:
+    """Write atomically (temp file + rename) so a killed run never leaves a half-written cache entry."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            np.savez(handle, points=points, normals=normals)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _writable_cache(cache_dir: Path) -> Path | None:
+    try:
+        cache_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        warnings.warn(f"training-data cache disabled, cannot create {cache_dir}: {err}", stacklevel=3)
+        return None
+    return cache_dir
+
+
+def clean_sample(spec: ShapeSpec, n_points: int, seed: int, cache_dir: Path | None) -> tuple[np.ndarray, np.ndarray]:
+    """The clean normalised sample of one shape for a dataset seed, read from / written to the cache."""
+    path = cache_dir / f"{spec.name}-{_cache_key(spec, n_points, seed)}.npz" if cache_dir else None
+    cached = _load(path, n_points) if path and path.exists() else None
+    if cached is not None:
+        return cached
+    points, normals = sample_shape(spec, n_points, _seed(seed, spec.name, "sample"))
+    if path:
+        _save(path, points, normals)
+    return points, normals
+
+
+def _select(split: str, shapes: Iterable[str | ShapeSpec] | None) -> list[ShapeSpec]:
+    specs = catalogue(split)
+    if shapes is None:
+        return list(specs)
+    by_name = {spec.name: spec for spec in specs}
+    chosen = [s if isinstance(s, ShapeSpec) else by_name.get(s) for s in shapes]
+    unknown = [s for s, spec in zip(shapes, chosen, strict=True) if spec is None]
+    if unknown:
+        raise TrainingError(f"unknown {split} shapes {unknown}; known: {sorted(by_name)}")
+    return chosen
+
+
+def build_dataset(
+    split: str = "train",
+    n_points: int = 100_000,
+    seed: int = 0,
+    cache_dir: str | Path | None = None,
+    shapes: Iterable[str | ShapeSpec] | None = None,
+    noise_levels: Iterable[float] = NOISE_LEVELS,
+    progress: bool = True,
+) -> list[Cloud]:
+    """Every (shape, noise level) cloud of a split, shape-major: 22 × 6 = 132 for 'train'.
+
+    Only the clean sample of each shape is cached (`.npz`, keyed by shape, params, n, seed and CODE_VERSION); the
+    noisy variants are redrawn from their own seed, which costs milliseconds and keeps the cache 6× smaller. The
+    noisy clouds of a shape share one read-only normals array.
+    """
+    from tqdm import tqdm
+
+    specs, levels = _select(split, shapes), tuple(float(s) for s in noise_levels)
+    root = _writable_cache(Path(cache_dir) if cache_dir is not None else default_cache_dir())
+    clouds = []
+    for spec in tqdm(specs, desc=f"{split} clouds", unit="shape", disable=not progress):
+        points, normals = clean_sample(spec, n_points, seed, root)
+        points.setflags(write=False)
+        normals.setflags(write=False)
+        for level in levels:
+            noisy = add_noise(points, level, _seed(seed, spec.name, round(level * 1e6))) if level > 0 else points
+            clouds.append(Cloud(spec.name, spec.kind, level, noisy, normals))
+    return clouds
+
+
+def heldout_cad_cloud(n_points: int = 20_000, noise: float = 0.01, seed: int = 123) -> Cloud:
+    """A small noisy CAD cloud from the validation catalogue (never trained on), for accuracy regression tests."""
+    spec = next(s for s in catalogue("val") if s.name == HELDOUT_SHAPE)
+    points, normals = sample_shape(spec, n_points, _seed(seed, spec.name, "sample"))
+    noisy = add_noise(points, noise, _seed(seed, spec.name, round(noise * 1e6))) if noise > 0 else points
+    return Cloud(spec.name, spec.kind, noise, noisy, normals)
+
+
+def plot_catalogue(path: str | Path, n_points: int = 4000, seed: int = 0) -> Path:
+    """A 3-D scatter grid of every training and validation shape, coloured by normal (RGB = (n + 1) / 2)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    specs = [(split, spec) for split in ("train", "val") for spec in catalogue(split)]
+    cols = 6
+    rows = -(-len(specs) // cols)
+    fig = plt.figure(figsize=(2.6 * cols, 2.6 * rows))
+    elev, azim = np.radians(25.0), np.radians(-55.0)
+    towards_camera = np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])
+    for i, (split, spec) in enumerate(specs):
+        points, normals = sample_shape(spec, n_points, seed)
+        front = normals @ towards_camera > 0  # back-face culling: see-through clouds are unreadable
+        ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
+        ax.view_init(np.degrees(elev), np.degrees(azim))
+        ax.scatter(*points[front].T, c=(normals[front] + 1) / 2, s=2.0, linewidths=0, depthshade=False)
+        ax.set_title(f"{spec.name}\n{split} · {spec.kind}", fontsize=8)
+        ax.set_box_aspect(np.ptp(points, axis=0))
+        ax.set_axis_off()
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=72)
+    plt.close(fig)
+    return path
