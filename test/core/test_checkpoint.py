@@ -17,6 +17,7 @@ from triplet_normal_ros.core.checkpoint import (
     read_metadata,
     save_checkpoint,
 )
+from triplet_normal_ros.core.conventions import POOL_FACTOR, RADIUS_FRACTION, checkpoint_conventions
 from triplet_normal_ros.core.model import TripletNormalNet
 
 META = {"k": 16, "radius_convention": "absolute", "recipe": "test", "data_seed": 7}
@@ -133,10 +134,44 @@ def test_safetensors_without_our_metadata_is_refused(tmp_path: Path) -> None:
     _assert_refused(tmp_path / "other.safetensors", "format")
 
 
-def _with_metadata(path: Path, net: TripletNormalNet, meta: dict) -> Path:
-    tensors = {name: t.contiguous() for name, t in net.state_dict().items()}
-    save_file(tensors, str(path), metadata={"triplet_normal": json.dumps(meta)})
+def _valid_meta(net: TripletNormalNet, **changes: object) -> dict:
+    """Metadata that passes every check for ``net``'s weights, with ``changes`` applied (None deletes a key)."""
+    meta = {**META, "format": FORMAT, "architecture": net.config, "conventions": checkpoint_conventions()}
+    meta.update(changes)
+    return {key: value for key, value in meta.items() if value is not None}
+
+
+def _with_metadata(path: Path, tensors: dict[str, torch.Tensor], meta: dict) -> Path:
+    contiguous = {name: t.contiguous() for name, t in tensors.items()}
+    save_file(contiguous, str(path), metadata={"triplet_normal": json.dumps(meta)})
     return path
+
+
+def _refusal(path: Path, *, metadata_ok: bool) -> str:
+    """The one-line message ``load_checkpoint`` refuses ``path`` with; ``read_metadata`` agrees or passes it."""
+    with pytest.raises(CheckpointError) as refused:
+        load_checkpoint(path)
+    message = str(refused.value)
+    assert "\n" not in message and message.startswith(str(path)), message
+    if metadata_ok:
+        read_metadata(path)  # the metadata alone is fine: the refusal came from the weights
+    else:
+        with pytest.raises(CheckpointError) as again:
+            read_metadata(path)
+        assert str(again.value) == message
+    return message
+
+
+def test_the_fixtures_valid_metadata_loads(tmp_path: Path) -> None:
+    """The control for the cases below: each differs from this only in what it names."""
+    net = _net()
+    model, _ = load_checkpoint(_with_metadata(tmp_path / "ok.safetensors", net.state_dict(), _valid_meta(net)))
+    x = torch.randn(3, 16, 3)
+    with torch.no_grad():
+        assert torch.equal(model(x), net(x))
+
+
+MISMATCH = "does not match the model it describes"
 
 
 @pytest.mark.parametrize(
@@ -146,38 +181,73 @@ def _with_metadata(path: Path, net: TripletNormalNet, meta: dict) -> Path:
         {"encoder": [16, 32], "regressor": [16, 8]},  # an extra layer
         {"encoder": [16, 32]},  # incomplete
         {"encoder": ["wide", 32], "regressor": [16]},  # not numbers
-        None,
+        {"encoder": [], "regressor": []},  # empty
+        "16-32/16",  # not an object
     ],
 )
 def test_architecture_that_does_not_match_the_weights_is_refused(tmp_path: Path, architecture: object) -> None:
-    path = _with_metadata(tmp_path / "m.safetensors", _net(), {"format": FORMAT, "architecture": architecture})
-    _assert_refused_load(path)
+    net = _net()
+    path = _with_metadata(tmp_path / "m.safetensors", net.state_dict(), _valid_meta(net, architecture=architecture))
+    assert MISMATCH in _refusal(path, metadata_ok=True)
 
 
-def _assert_refused_load(path: Path) -> None:
-    with pytest.raises(CheckpointError, match=re.escape(str(path))):
-        load_checkpoint(path)
+def test_missing_architecture_is_refused(tmp_path: Path) -> None:
+    net = _net()
+    path = _with_metadata(tmp_path / "m.safetensors", net.state_dict(), _valid_meta(net, architecture=None))
+    assert MISMATCH in _refusal(path, metadata_ok=True)
 
 
-def test_missing_or_extra_tensors_are_refused(tmp_path: Path) -> None:
-    state = {name: t.contiguous() for name, t in _net().state_dict().items()}
-    meta = json.dumps({"format": FORMAT, "architecture": {"encoder": [16, 32], "regressor": [16]}})
-    dropped = dict(list(state.items())[1:])
-    save_file(dropped, str(tmp_path / "dropped.safetensors"), metadata={"triplet_normal": meta})
-    _assert_refused_load(tmp_path / "dropped.safetensors")
-    extra = {**state, "stowaway": torch.zeros(3)}
-    save_file(extra, str(tmp_path / "extra.safetensors"), metadata={"triplet_normal": meta})
-    _assert_refused_load(tmp_path / "extra.safetensors")
+@pytest.mark.parametrize("change", ["dropped", "extra", "reshaped"])
+def test_missing_extra_or_reshaped_tensors_are_refused(tmp_path: Path, change: str) -> None:
+    net = _net()
+    state = dict(net.state_dict())
+    first = next(iter(state))
+    if change == "dropped":
+        del state[first]
+    elif change == "extra":
+        state["stowaway"] = torch.zeros(3)
+    else:
+        state[first] = torch.zeros(2, *state[first].shape)
+    path = _with_metadata(tmp_path / f"{change}.safetensors", state, _valid_meta(net))
+    message = _refusal(path, metadata_ok=True)
+    assert MISMATCH in message
+    assert ("stowaway" if change == "extra" else first) in message
+
+
+@pytest.mark.parametrize(
+    ("conventions", "expected"),
+    [
+        (None, "does not record its conventions (pool factor, radius fraction)"),
+        ("4/0.05", "does not record its conventions (pool factor, radius fraction)"),
+        (
+            {"radius_fraction": RADIUS_FRACTION},
+            f"was trained under other conventions: pool_factor None (this version uses {POOL_FACTOR})",
+        ),
+        (
+            {"pool_factor": 2 * POOL_FACTOR, "radius_fraction": RADIUS_FRACTION},
+            f"was trained under other conventions: pool_factor {2 * POOL_FACTOR} (this version uses {POOL_FACTOR})",
+        ),
+        (
+            {"pool_factor": POOL_FACTOR, "radius_fraction": RADIUS_FRACTION / 2},
+            f"was trained under other conventions: radius_fraction {RADIUS_FRACTION / 2} "
+            f"(this version uses {RADIUS_FRACTION})",
+        ),
+    ],
+)
+def test_a_checkpoint_from_other_conventions_is_refused(tmp_path: Path, conventions: object, expected: str) -> None:
+    net = _net()
+    path = _with_metadata(tmp_path / "c.safetensors", net.state_dict(), _valid_meta(net, conventions=conventions))
+    assert _refusal(path, metadata_ok=False) == f"{path} {expected}"  # exactly the one convention that differs
+
+
+@pytest.mark.parametrize("k", [None, 2, 16.0, True, "16"])
+def test_a_missing_or_invalid_patch_size_is_refused(tmp_path: Path, k: object) -> None:
+    net = _net()
+    path = _with_metadata(tmp_path / "k.safetensors", net.state_dict(), _valid_meta(net, k=k))
+    assert f"invalid patch size k = {k!r}" in _refusal(path, metadata_ok=False)
 
 
 def test_metadata_that_is_not_a_json_object_is_refused(tmp_path: Path) -> None:
     path = tmp_path / "list.safetensors"
     save_file({"a": torch.zeros(2)}, str(path), metadata={"triplet_normal": "[1, 2]"})
     _assert_refused(path)
-
-
-def test_empty_architecture_is_refused(tmp_path: Path) -> None:
-    path = _with_metadata(
-        tmp_path / "e.safetensors", _net(), {"format": FORMAT, "architecture": {"encoder": [], "regressor": []}}
-    )
-    _assert_refused_load(path)

@@ -106,8 +106,14 @@ def load_checkpoint(path: str | Path | None, device: torch.device | str = "cpu")
             state = {name: handle.get_tensor(name) for name in handle.keys()}  # noqa: SIM118
         model.load_state_dict(state, strict=True)
     except (KeyError, TypeError, ValueError, IndexError, RuntimeError, SafetensorError) as error:
-        raise CheckpointError(f"{path} does not match the model it describes ({error})") from None
+        raise CheckpointError(f"{path} does not match the model it describes ({_one_line(error)})") from None
     return model.to(device).eval(), meta
+
+
+def _one_line(error: Exception, limit: int = 300) -> str:
+    """torch's state-dict errors run over many lines (one per tensor); a CheckpointError is one line."""
+    text = " ".join(str(error).split())
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 def _existing(path: str | Path) -> Path:
