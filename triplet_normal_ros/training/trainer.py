@@ -3,25 +3,99 @@
 SGD (momentum 0.9, lr 0.01), lr × 0.1 after `patience` epochs without validation improvement, seeds fixed, tqdm
 progress, and a resumable state file after every epoch. Two recipes: the paper's (GPU scale) and a CPU one that
 produced the shipped checkpoint; docs/TRAINING.md records both.
+
+Reproducibility: torch's global generator is seeded once, draws the weight initialisation and then one shuffle per
+epoch (`_shuffled_batches`); everything else draws from generators seeded per collection. Changing the order of those
+calls changes the shipped checkpoint.
 """
 
 import dataclasses
 import json
 import sys
 import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 import torch
+from torch.optim.lr_scheduler import ReduceLROnPlateau
 from tqdm import tqdm
 
-from ..core.checkpoint import save_checkpoint
+from ..core.checkpoint import load_checkpoint, save_checkpoint
 from ..core.device import resolve_device
 from ..core.model import TripletNormalNet
 from ..errors import TrainingError
 from .batches import CloudSampler, NormalSet, TripletSet, collect_normal_patches, collect_triplets
+from .curves import plot_curves
 from .losses import patch_loss, triplet_loss
 from .recipes import RESUME_FIXED, Recipe
+
+#: Rows per forward pass when computing a validation loss; memory only, the result does not depend on it.
+_TRIPLET_EVAL_CHUNK, _NORMAL_EVAL_CHUNK = 256, 512
+
+
+@dataclass
+class TrainingRun:
+    """What every phase reads and extends, in one place instead of eight arguments threaded through each phase.
+
+    `state` is the state.pt being resumed (None on a fresh run). `history` gains one row per epoch and is saved
+    with the weights after every epoch, so a killed run loses at most the epoch in progress.
+    """
+
+    model: TripletNormalNet
+    recipe: Recipe
+    train_set: list[CloudSampler]
+    val_set: list[CloudSampler]
+    device: torch.device
+    run_dir: Path
+    state: dict | None = None
+    history: list[dict] = field(default_factory=list)
+
+    def resumed(self, phase: str) -> dict | None:
+        """The saved state when it stopped inside `phase`; None when this phase starts afresh."""
+        return self.state if self.state and self.state["phase"] == phase else None
+
+    def end_epoch(
+        self, phase: str, epoch: int, losses: tuple[float, float], n: int, opt: torch.optim.Optimizer, sched
+    ) -> None:
+        """Record the epoch's (train, validation) losses and save everything needed to resume after it."""
+        train_loss, val_loss = losses
+        lr = opt.param_groups[0]["lr"]
+        self.history.append({"phase": phase, "epoch": epoch, "train": train_loss, "val": val_loss, "lr": lr, "n": n})
+        self.save(phase, epoch, opt, sched)
+
+    def save(self, phase: str, epoch: int, opt: torch.optim.Optimizer | None = None, sched=None) -> None:
+        """Write state.pt atomically (temp file + rename): a run killed mid-write keeps its previous state."""
+        state = {
+            "recipe": dataclasses.asdict(self.recipe),
+            "phase": phase,
+            "epoch": epoch,
+            "model": self.model.state_dict(),
+            "history": self.history,
+            "optimizer": opt.state_dict() if opt else None,
+            "scheduler": sched.state_dict() if sched else None,
+        }
+        tmp = self.run_dir / "state.pt.tmp"
+        torch.save(state, tmp)
+        tmp.replace(self.run_dir / "state.pt")
+
+
+@dataclass
+class _NormalFit:
+    """What phases (b) and (c) differ in; `_fit_normals` runs either."""
+
+    phase: str
+    head: torch.nn.Module  # what the loss runs through: the regressor on frozen latents, or the whole model
+    epochs: int
+    first: int  # 0, or the epoch after the resumed one
+    patches: Callable[[int], NormalSet]  # an epoch's training patches
+    val: NormalSet
+    batch_size: int
+    opt: torch.optim.Optimizer
+    sched: ReduceLROnPlateau
+    freeze_bn: bool = False
 
 
 def train(
@@ -34,7 +108,21 @@ def train(
 ) -> dict:
     """Run both phases (or resume them) and write the checkpoint to `out`; returns the training summary."""
     start = time.time()
-    dev = resolve_device(device)
+    run = _start(recipe, run_dir, resolve_device(device), resume, encoder_from)
+    if recipe.triplet and not encoder_from:
+        _phase_encoder(run)
+    _phase_regressor(run)
+    _phase_finetune(run)
+    summary = _summary(run, start)
+    save_checkpoint(out, run.model.cpu(), _metadata(recipe, summary))
+    (run_dir / "history.json").write_text(json.dumps(summary, indent=2))
+    plot_curves(run.history, run_dir / "training_curves.png")
+    return summary
+
+
+def _start(recipe: Recipe, run_dir: Path, dev: torch.device, resume: bool, encoder_from: Path | None) -> TrainingRun:
+    """Seed, then build or restore the model before the data: the weight initialisation is the first draw from the
+    seeded global generator, so this order is part of what makes a recipe reproduce its checkpoint."""
     torch.manual_seed(recipe.seed)
     run_dir.mkdir(parents=True, exist_ok=True)
     state = _load_state(run_dir) if resume else None
@@ -47,17 +135,23 @@ def train(
         _load_encoder(model, encoder_from)
     history = state["history"] if state else []
     train_set, val_set = _samplers(recipe, "train"), _samplers(recipe, "val")
-    if recipe.triplet and not encoder_from:
-        _phase_encoder(model, recipe, train_set, val_set, dev, run_dir, state, history)
-    _phase_regressor(model, recipe, train_set, val_set, dev, run_dir, state, history)
-    _phase_finetune(model, recipe, train_set, val_set, dev, run_dir, state, history)
-    summary = {
+    return TrainingRun(model, recipe, train_set, val_set, dev, run_dir, state, history)
+
+
+def _summary(run: TrainingRun, start: float) -> dict:
+    """history.json's content; the best normal-loss validation epoch is what the checkpoint ships."""
+    normal_vals = (h["val"] for h in run.history if h["phase"] != "encoder")
+    return {
         "wall_seconds": round(time.time() - start, 1),
-        "device": str(dev),
-        "history": history,
-        "final_val_normal_loss": min((h["val"] for h in history if h["phase"] != "encoder"), default=None),
+        "device": str(run.device),
+        "history": run.history,
+        "final_val_normal_loss": min(normal_vals, default=None),
     }
-    meta = {
+
+
+def _metadata(recipe: Recipe, summary: dict) -> dict:
+    """The checkpoint's metadata: the k and radius convention inference must use, and how it was trained."""
+    return {
         "k": recipe.k,
         "radius": {
             "convention": "absolute, in the cloud's units, at inference",
@@ -70,10 +164,6 @@ def train(
             **{k: v for k, v in summary.items() if k != "history"},
         },
     }
-    save_checkpoint(out, model.cpu(), meta)
-    (run_dir / "history.json").write_text(json.dumps(summary, indent=2))
-    _plot_curves(history, run_dir / "training_curves.png")
-    return summary
 
 
 def _samplers(recipe: Recipe, split: str) -> list[CloudSampler]:
@@ -84,128 +174,179 @@ def _samplers(recipe: Recipe, split: str) -> list[CloudSampler]:
     return [CloudSampler(c.points, c.normals, recipe.radius_rel, recipe.k) for c in clouds]
 
 
-def _phase_encoder(model, recipe, train_set, val_set, dev, run_dir, state, history) -> None:
+def _phase_encoder(run: TrainingRun) -> None:
+    """Phase (a): the encoder alone on the triplet loss, on fresh triplets every epoch."""
+    recipe, encoder, state = run.recipe, run.model.encoder, run.state
     if state and state["phase"] != "encoder":
         return
-    params = list(model.encoder.parameters())
-    opt, sched = _optimiser(params, recipe, state)
-    first = state["epoch"] + 1 if state else 0
-    val = collect_triplets(val_set, recipe.val_patches_per_cloud, recipe.seed + 10_000, "val triplets")
-    for epoch in range(first, recipe.encoder_epochs):
-        data = collect_triplets(train_set, recipe.patches_per_shape, recipe.seed + epoch, f"triplets e{epoch}")
-        train_loss = _triplet_epoch(
-            model.encoder, data, opt, recipe, dev, f"encoder {epoch + 1}/{recipe.encoder_epochs}"
-        )
-        val_loss = _triplet_eval(model.encoder, val, dev)
+    opt, sched = _optimiser(list(encoder.parameters()), recipe.lr, recipe, state)
+    val = collect_triplets(run.val_set, recipe.val_patches_per_cloud, recipe.seed + 10_000, "val triplets")
+    val_loss_of = partial(_triplet_val_loss, encoder, val, run.device)
+    for epoch in range(_first_epoch(state), recipe.encoder_epochs):
+        data = collect_triplets(run.train_set, recipe.patches_per_shape, recipe.seed + epoch, f"triplets e{epoch}")
+        batches = _shuffled_batches(len(data.anchor), recipe.batch_size)
+        step = partial(_triplet_batch_loss, encoder, data, run.device)
+        train_loss = _epoch(encoder, batches, step, opt, f"encoder {epoch + 1}/{recipe.encoder_epochs}")
+        val_loss = _mean_loss(encoder, len(val.anchor), _TRIPLET_EVAL_CHUNK, val_loss_of)
         sched.step(val_loss)
-        history.append(
-            {
-                "phase": "encoder",
-                "epoch": epoch,
-                "train": train_loss,
-                "val": val_loss,
-                "lr": opt.param_groups[0]["lr"],
-                "n": len(data.anchor),
-            }
-        )
-        _save_state(run_dir, "encoder", epoch, model, opt, sched, history, recipe)
-    _save_state(run_dir, "regressor", -1, model, None, None, history, recipe)
+        run.end_epoch("encoder", epoch, (train_loss, val_loss), len(data.anchor), opt, sched)
+    run.save("regressor", -1)
 
 
-def _phase_regressor(model, recipe, train_set, val_set, dev, run_dir, state, history) -> None:
+def _phase_regressor(run: TrainingRun) -> None:
     """With the triplet encoder frozen, the latents are computed once and the regressor trains on them; without it
     (the ablation), encoder and regressor train together on the normal loss."""
-    if state and state["phase"] == "finetune":
+    recipe, model = run.recipe, run.model
+    if run.resumed("finetune"):
         return
-    resumed = state if state and state["phase"] == "regressor" and state["epoch"] >= 0 else None
+    resumed = run.resumed("regressor")
+    resumed = resumed if resumed and resumed["epoch"] >= 0 else None  # -1: phase (a) just ended
     if resumed and resumed["epoch"] + 1 >= recipe.regressor_epochs:
         return  # finished before; resuming goes on to the next phase
     params = list(model.regressor.parameters()) + ([] if recipe.triplet else list(model.encoder.parameters()))
-    opt, sched = _optimiser(params, recipe, resumed)
-    train = collect_normal_patches(train_set, recipe.regressor_patches_per_shape, recipe.seed + 20_000, "patches")
-    val = collect_normal_patches(val_set, recipe.val_patches_per_cloud, recipe.seed + 30_000, "val patches")
+    opt, sched = _optimiser(params, recipe.lr, recipe, resumed)
+    train = collect_normal_patches(run.train_set, recipe.regressor_patches_per_shape, recipe.seed + 20_000, "patches")
+    val = _val_patches(run)
     if recipe.triplet:
-        train, val = _encoded(model.encoder, train, dev), _encoded(model.encoder, val, dev)
+        train, val = _encoded(model.encoder, train, run.device), _encoded(model.encoder, val, run.device)
     head = model.regressor if recipe.triplet else model
-    _fit_normals(
-        model,
-        head,
-        "regressor",
-        recipe.regressor_epochs,
-        resumed,
-        train,
-        val,
-        opt,
-        sched,
-        recipe,
-        dev,
-        run_dir,
-        history,
+    # A step on precomputed latents costs next to nothing, so the frozen-encoder path takes larger batches.
+    batch_size = max(recipe.batch_size, 256) if recipe.triplet else recipe.batch_size
+    fit = _NormalFit(
+        "regressor", head, recipe.regressor_epochs, _first_epoch(resumed), lambda _: train, val, batch_size, opt, sched
     )
+    _fit_normals(run, fit)
 
 
-def _phase_finetune(model, recipe, train_set, val_set, dev, run_dir, state, history) -> None:
+def _phase_finetune(run: TrainingRun) -> None:
     """Phase (c), our addition (docs/MODEL.md): encoder and regressor together on the normal loss, starting from the
     triplet encoder and the trained regressor. On the CPU budget the frozen triplet latent alone only matched PCA."""
+    recipe = run.recipe
     if recipe.finetune_epochs <= 0 or not recipe.triplet:
         return
-    resumed = state if state and state["phase"] == "finetune" else None
-    opt, sched = _optimiser(list(model.parameters()), dataclasses.replace(recipe, lr=recipe.finetune_lr), resumed)
+    resumed = run.resumed("finetune")
+    opt, sched = _optimiser(list(run.model.parameters()), recipe.finetune_lr, recipe, resumed)
+    per_cloud = recipe.finetune_patches_per_shape
+    per_cloud = recipe.regressor_patches_per_shape if per_cloud is None else per_cloud
 
     def train(epoch: int) -> NormalSet:  # fresh patches every epoch, so the whole network cannot memorise them
-        per_cloud = recipe.finetune_patches_per_shape
-        per_cloud = recipe.regressor_patches_per_shape if per_cloud is None else per_cloud
-        return collect_normal_patches(train_set, per_cloud, recipe.seed + 40_000 + epoch, f"patches c{epoch}")
+        return collect_normal_patches(run.train_set, per_cloud, recipe.seed + 40_000 + epoch, f"patches c{epoch}")
 
-    val = collect_normal_patches(val_set, recipe.val_patches_per_cloud, recipe.seed + 30_000, "val patches")
-    end_to_end = dataclasses.replace(recipe, triplet=False)  # batch size of the end-to-end path
-    _fit_normals(
-        model,
-        model,
+    fit = _NormalFit(
         "finetune",
+        run.model,
         recipe.finetune_epochs,
-        resumed,
+        _first_epoch(resumed),
         train,
-        val,
+        _val_patches(run),
+        recipe.batch_size,
         opt,
         sched,
-        end_to_end,
-        dev,
-        run_dir,
-        history,
         freeze_bn=recipe.finetune_freeze_bn,
     )
+    _fit_normals(run, fit)
 
 
-def _fit_normals(
-    model, head, phase, epochs, resumed, train, val, opt, sched, recipe, dev, run_dir, history, freeze_bn=False
-) -> None:
-    """Epochs of the normal loss on `head`, on one patch set or on `train(epoch)`'s; the model ends with the weights
-    of its best validation epoch."""
-    best = (_normal_eval(head, val, recipe, dev), None)
-    for epoch in range((resumed["epoch"] + 1) if resumed else 0, epochs):
-        data = train(epoch) if callable(train) else train
-        train_loss = _normal_epoch(head, data, opt, recipe, dev, f"{phase} {epoch + 1}/{epochs}", freeze_bn)
-        val_loss = _normal_eval(head, val, recipe, dev)
-        sched.step(val_loss)
+def _val_patches(run: TrainingRun) -> NormalSet:
+    """The validation patches of phases (b) and (c): the same seed, so their losses compare."""
+    recipe = run.recipe
+    return collect_normal_patches(run.val_set, recipe.val_patches_per_cloud, recipe.seed + 30_000, "val patches")
+
+
+def _fit_normals(run: TrainingRun, fit: _NormalFit) -> None:
+    """Epochs of the normal loss on `fit.head`; the model ends with the weights of its best validation epoch."""
+    val_loss_of = partial(_recipe_loss, fit.head, fit.val, run.recipe, run.device)
+    evaluate = partial(_mean_loss, fit.head, len(fit.val.patches), _NORMAL_EVAL_CHUNK, val_loss_of)
+    best = (evaluate(), None)
+    for epoch in range(fit.first, fit.epochs):
+        data = fit.patches(epoch)
+        batches = _shuffled_batches(len(data.patches), fit.batch_size)
+        step = partial(_recipe_loss, fit.head, data, run.recipe, run.device)
+        desc = f"{fit.phase} {epoch + 1}/{fit.epochs}"
+        train_loss = _epoch(fit.head, batches, step, fit.opt, desc, fit.freeze_bn)
+        val_loss = evaluate()
+        fit.sched.step(val_loss)
         if val_loss < best[0]:
-            best = (val_loss, {k: v.detach().clone() for k, v in model.state_dict().items()})
-        history.append(
-            {
-                "phase": phase,
-                "epoch": epoch,
-                "train": train_loss,
-                "val": val_loss,
-                "lr": opt.param_groups[0]["lr"],
-                "n": len(data.patches),
-            }
-        )
-        _save_state(run_dir, phase, epoch, model, opt, sched, history, recipe)
+            best = (val_loss, {k: v.detach().clone() for k, v in run.model.state_dict().items()})
+        run.end_epoch(fit.phase, epoch, (train_loss, val_loss), len(data.patches), fit.opt, fit.sched)
     if best[1] is not None:  # ship the best validation epoch, not the last
-        model.load_state_dict(best[1])
+        run.model.load_state_dict(best[1])
 
 
-def _encoded(encoder, data: NormalSet, dev) -> NormalSet:
+def _first_epoch(resumed: dict | None) -> int:
+    """Where a phase starts: after the epoch its saved state ended, or at 0."""
+    return resumed["epoch"] + 1 if resumed else 0
+
+
+def _shuffled_batches(rows: int, batch_size: int) -> list[torch.Tensor]:
+    """An epoch's row indices in a fresh order from the global generator, in batches; a last batch of one row is
+    dropped because BatchNorm cannot normalise a single sample in training mode."""
+    order = torch.randperm(rows)
+    batches = (order[lo : lo + batch_size] for lo in range(0, rows, batch_size))
+    return [idx for idx in batches if len(idx) >= 2]
+
+
+def _epoch(
+    module: torch.nn.Module,
+    batches: list[torch.Tensor],
+    batch_loss: Callable[[torch.Tensor], torch.Tensor],
+    opt: torch.optim.Optimizer,
+    desc: str,
+    freeze_bn: bool = False,
+) -> float:
+    """One SGD pass of `module` over `batches` of row indices; returns the mean batch loss. Both phases' losses come
+    in as `batch_loss`, so they share one loop. `freeze_bn` keeps the running statistics the later layers were
+    trained on (phase (c))."""
+    module.train()
+    if freeze_bn:
+        for child in module.modules():
+            if isinstance(child, torch.nn.BatchNorm1d):
+                child.eval()
+    losses: list[float] = []
+    bar = tqdm(batches, desc=desc, unit="batch", leave=False)
+    for idx in bar:
+        loss = batch_loss(idx)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+        bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}")
+    return float(np.mean(losses))
+
+
+def _mean_loss(module: torch.nn.Module, rows: int, chunk: int, chunk_loss: Callable[[slice], torch.Tensor]) -> float:
+    """A validation loss: the per-row mean of `chunk_loss` over `rows` rows, in eval mode and without autograd."""
+    module.eval()
+    total = 0.0
+    with torch.inference_mode():
+        for lo in range(0, rows, chunk):
+            part = slice(lo, min(lo + chunk, rows))
+            total += chunk_loss(part).item() * (part.stop - part.start)
+    return float(total / max(1, rows))
+
+
+def _triplet_batch_loss(encoder: torch.nn.Module, data: TripletSet, dev: torch.device, idx: torch.Tensor):
+    """Triplet loss of rows `idx`, all three patches in one forward pass so BatchNorm sees them together."""
+    batch = torch.cat([data.anchor[idx], data.positive[idx], data.negative[idx]]).to(dev)
+    f = torch.nn.functional.normalize(encoder(batch), dim=-1).split(len(idx))
+    return triplet_loss(*f)
+
+
+def _triplet_val_loss(encoder: torch.nn.Module, data: TripletSet, dev: torch.device, rows: slice) -> torch.Tensor:
+    """Triplet loss of `rows` in eval mode (BatchNorm uses running statistics, so the three passes may be separate)."""
+    triple = (data.anchor, data.positive, data.negative)
+    f = [torch.nn.functional.normalize(encoder(t[rows].to(dev)), dim=-1) for t in triple]
+    return triplet_loss(*f)
+
+
+def _recipe_loss(head: torch.nn.Module, data: NormalSet, recipe: Recipe, dev: torch.device, rows) -> torch.Tensor:
+    """The recipe's normal loss of `head` on `rows` of `data` (training and validation alike)."""
+    pred = head(data.patches[rows].to(dev))
+    centre, patch = data.centre_normal[rows].to(dev), data.patch_normals[rows].to(dev)
+    return patch_loss(recipe.loss, pred, centre, patch, recipe.exponent, recipe.support_deg, recipe.relative_floor_deg)
+
+
+def _encoded(encoder: torch.nn.Module, data: NormalSet, dev: torch.device) -> NormalSet:
     """Replace patches by their frozen latents: phase (b) then costs one encoder pass in total."""
     encoder.eval()
     with torch.inference_mode():
@@ -213,101 +354,16 @@ def _encoded(encoder, data: NormalSet, dev) -> NormalSet:
     return NormalSet(torch.cat(latents), data.centre_normal, data.patch_normals)
 
 
-def _triplet_epoch(encoder, data: TripletSet, opt, recipe, dev, desc) -> float:
-    encoder.train()
-    order = torch.randperm(len(data.anchor))
-    losses = []
-    bar = tqdm(range(0, len(order), recipe.batch_size), desc=desc, unit="batch", leave=False)
-    for lo in bar:
-        idx = order[lo : lo + recipe.batch_size]
-        if len(idx) < 2:
-            continue
-        batch = torch.cat([data.anchor[idx], data.positive[idx], data.negative[idx]]).to(dev)
-        f = torch.nn.functional.normalize(encoder(batch), dim=-1).split(len(idx))
-        loss = triplet_loss(*f)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        losses.append(loss.item())
-        bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}")
-    return float(np.mean(losses))
-
-
-def _triplet_eval(encoder, data: TripletSet, dev) -> float:
-    encoder.eval()
-    with torch.inference_mode():
-        parts = []
-        for lo in range(0, len(data.anchor), 256):
-            f = [
-                torch.nn.functional.normalize(encoder(t[lo : lo + 256].to(dev)), dim=-1)
-                for t in (data.anchor, data.positive, data.negative)
-            ]
-            parts.append(triplet_loss(*f).item() * len(f[0]))
-    return float(sum(parts) / max(1, len(data.anchor)))
-
-
-def _normal_epoch(head, data: NormalSet, opt, recipe, dev, desc, freeze_bn: bool = False) -> float:
-    head.train()
-    if freeze_bn:  # keep the running statistics the later layers were trained on
-        for module in head.modules():
-            if isinstance(module, torch.nn.BatchNorm1d):
-                module.eval()
-    order = torch.randperm(len(data.patches))
-    losses = []
-    batch_size = recipe.batch_size if not recipe.triplet else max(recipe.batch_size, 256)
-    bar = tqdm(range(0, len(order), batch_size), desc=desc, unit="batch", leave=False)
-    for lo in bar:
-        idx = order[lo : lo + batch_size]
-        if len(idx) < 2:
-            continue
-        loss = _recipe_loss(head, data, idx, recipe, dev)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        losses.append(loss.item())
-        bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}")
-    return float(np.mean(losses))
-
-
-def _recipe_loss(head, data: NormalSet, rows, recipe: Recipe, dev) -> torch.Tensor:
-    """The recipe's normal loss of `head` on `rows` of `data` (training and validation alike)."""
-    pred = head(data.patches[rows].to(dev))
-    centre, patch = data.centre_normal[rows].to(dev), data.patch_normals[rows].to(dev)
-    return patch_loss(recipe.loss, pred, centre, patch, recipe.exponent, recipe.support_deg, recipe.relative_floor_deg)
-
-
-def _normal_eval(head, data: NormalSet, recipe, dev) -> float:
-    head.eval()
-    total = 0.0
-    with torch.inference_mode():
-        for lo in range(0, len(data.patches), 512):
-            rows = slice(lo, lo + 512)
-            total += _recipe_loss(head, data, rows, recipe, dev).item() * len(data.patches[rows])
-    return total / max(1, len(data.patches))
-
-
-def _optimiser(params, recipe: Recipe, state: dict | None):
-    opt = torch.optim.SGD(params, lr=recipe.lr, momentum=recipe.momentum)
-    sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, mode="min", factor=0.1, patience=recipe.patience)
+def _optimiser(
+    params: Iterable[torch.nn.Parameter], lr: float, recipe: Recipe, state: dict | None
+) -> tuple[torch.optim.Optimizer, ReduceLROnPlateau]:
+    """SGD with the recipe's momentum and plateau schedule, restored from `state` when resuming mid-phase."""
+    opt = torch.optim.SGD(params, lr=lr, momentum=recipe.momentum)
+    sched = ReduceLROnPlateau(opt, mode="min", factor=0.1, patience=recipe.patience)
     if state and state.get("optimizer"):
         opt.load_state_dict(state["optimizer"])
         sched.load_state_dict(state["scheduler"])
     return opt, sched
-
-
-def _save_state(run_dir: Path, phase: str, epoch: int, model, opt, sched, history, recipe: Recipe) -> None:
-    state = {
-        "recipe": dataclasses.asdict(recipe),
-        "phase": phase,
-        "epoch": epoch,
-        "model": model.state_dict(),
-        "history": history,
-        "optimizer": opt.state_dict() if opt else None,
-        "scheduler": sched.state_dict() if sched else None,
-    }
-    tmp = run_dir / "state.pt.tmp"
-    torch.save(state, tmp)
-    tmp.replace(run_dir / "state.pt")
 
 
 def _load_state(run_dir: Path) -> dict | None:
@@ -329,37 +385,5 @@ def _check_resumable(state: dict, recipe: Recipe, run_dir: Path) -> None:
 
 
 def _load_encoder(model: TripletNormalNet, path: Path) -> None:
-    from ..core.checkpoint import load_checkpoint
-
     donor, _ = load_checkpoint(path)
     model.encoder.load_state_dict(donor.encoder.state_dict())
-
-
-def _plot_curves(history: list[dict], path: Path) -> None:
-    """One panel per phase that ran (phase (c) is off in both recipes), train and validation loss per epoch."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    titles = {
-        "encoder": "(a) triplet loss",
-        "regressor": "(b) normal loss, frozen encoder",
-        "finetune": "(c) normal loss, end to end",
-    }
-    phases = [p for p in titles if any(h["phase"] == p for h in history)] or ["regressor"]
-    fig, axes = plt.subplots(1, len(phases), figsize=(4.7 * len(phases), 3.6), squeeze=False)
-    for ax, phase in zip(axes[0], phases, strict=True):
-        rows = [h for h in history if h["phase"] == phase]
-        if rows:
-            epochs = [h["epoch"] + 1 for h in rows]
-            ax.plot(epochs, [h["train"] for h in rows], "o-", label="train")
-            ax.plot(epochs, [h["val"] for h in rows], "s-", label="validation")
-            ax.legend()
-            ax.xaxis.get_major_locator().set_params(integer=True)
-        ax.set_title(titles[phase])
-        ax.set_xlabel("epoch")
-        ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
