@@ -1,18 +1,21 @@
-"""Parameter validation: the pure rules in node_params, and the real node's descriptors and on-set callback."""
+"""Parameter validation: the pure rules in ros.params, and the real node's descriptors and on-set callback."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import fields
 
+import numpy as np
 import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
+from triplet_normal_ros.core.checkpoint import default_checkpoint_path, read_metadata
+from triplet_normal_ros.core.conventions import PCA_DEFAULT_K
 from triplet_normal_ros.ros.node import StartupError, TripletNormalNode
 from triplet_normal_ros.ros.params import (
-    K_FROM_CHECKPOINT,
+    K_METHOD_DEFAULT,
     SPEC_BY_NAME,
     SPECS,
     NodeSettings,
@@ -35,10 +38,7 @@ def test_settings_defaults_agree_with_the_declared_defaults() -> None:
     for f in fields(NodeSettings):
         expected = SPEC_BY_NAME[f.name].default
         actual = getattr(settings, f.name)
-        if f.name == "k":
-            assert actual == K_FROM_CHECKPOINT  # the real default comes from the checkpoint
-        else:
-            assert (list(actual) if f.name == "viewpoint" else actual) == expected
+        assert (list(actual) if f.name == "viewpoint" else actual) == expected
 
 
 @pytest.mark.parametrize(
@@ -49,7 +49,10 @@ def test_settings_defaults_agree_with_the_declared_defaults() -> None:
         ("radius", float("nan")),
         ("radius", float("inf")),
         ("radius", "0.1"),
+        ("k", 1),
         ("k", 2),
+        ("k", -1),
+        ("k", 100_001),
         ("k", 3.5),
         ("k", True),
         ("batch_size", 0),
@@ -74,6 +77,7 @@ def test_bad_values_get_a_reason_naming_the_parameter(name: str, value) -> None:
     [
         ("radius", 0.01),
         ("radius", 2),
+        ("k", K_METHOD_DEFAULT),
         ("k", 3),
         ("k", 128),
         ("method", "pca"),
@@ -99,7 +103,7 @@ def test_apply_converts_types_and_keeps_the_rest() -> None:
     s = apply(NodeSettings(), {"radius": 1, "viewpoint": [1, 2, 3], "use_sim_time": True})
     assert s.radius == 1.0 and isinstance(s.radius, float)
     assert s.viewpoint == (1.0, 2.0, 3.0)
-    assert s.method == "learned" and s.k == K_FROM_CHECKPOINT
+    assert s.method == "learned" and s.k == K_METHOD_DEFAULT
 
 
 def test_only_method_checkpoint_and_device_need_a_reload() -> None:
@@ -149,14 +153,52 @@ def test_declared_with_descriptors_ranges_and_descriptions(node: TripletNormalNo
             assert (d.floating_point_range[0].from_value, d.floating_point_range[0].to_value) == spec.bounds
 
 
-def test_k_defaults_to_the_estimators_default(node: TripletNormalNode) -> None:
-    assert node.get_parameter("k").value == 500  # pca has no checkpoint: the documented fallback
+def test_k_is_declared_with_both_meanings_and_zero_as_the_method_default(node: TripletNormalNode) -> None:
+    d = node.describe_parameter("k")
+    assert "points per patch" in d.description and "neighbours" in d.description
+    assert "checkpoint's k" in d.description and str(PCA_DEFAULT_K) in d.description
+    assert (d.integer_range[0].from_value, d.additional_constraints) == (0, "0 or >= 3")
+    assert node.get_parameter("k").value == K_METHOD_DEFAULT == 0
+    assert "k must be 0 (the method's default) or >= 3" in validate("k", 2)
 
 
-def test_a_k_override_is_kept(context: Context) -> None:
+def _k_in_force(node: TripletNormalNode) -> int:
+    """The k the worker runs with: estimate a small plane with the node's current snapshot, read the estimator's k."""
+    estimator, settings = node._active
+    plane = np.random.default_rng(0).uniform(-0.05, 0.05, (200, 3)).astype(np.float32) * [1, 1, 0]
+    normals, _ = node._estimate(estimator, settings, plane)
+    assert np.isfinite(normals).all()
+    return estimator.k
+
+
+def test_k_zero_means_pca_default_k_for_pca(node: TripletNormalNode) -> None:
+    assert _k_in_force(node) == PCA_DEFAULT_K
+    assert node.set_parameters([Parameter("k", value=16)])[0].successful
+    assert _k_in_force(node) == 16
+    assert node.set_parameters([Parameter("k", value=K_METHOD_DEFAULT)])[0].successful
+    assert _k_in_force(node) == PCA_DEFAULT_K  # back to the default, not stuck at the last value
+
+
+def test_k_zero_means_the_checkpoints_k_for_learned_and_follows_a_method_change(context: Context) -> None:
+    checkpoint_k = read_metadata(default_checkpoint_path())["k"]
+    assert checkpoint_k != PCA_DEFAULT_K  # otherwise this test could not tell the two defaults apart
+    n = make_node(context, method="learned", device="cpu")
+    try:
+        assert n.get_parameter("k").value == K_METHOD_DEFAULT
+        assert _k_in_force(n) == checkpoint_k
+        assert n.set_parameters([Parameter("method", value="pca")])[0].successful
+        assert n.get_parameter("k").value == K_METHOD_DEFAULT and _k_in_force(n) == PCA_DEFAULT_K
+    finally:
+        assert n.stop()
+        n.destroy_node()
+
+
+def test_a_k_override_is_kept_across_a_method_change(context: Context) -> None:
     n = make_node(context, k=32)
     try:
-        assert n.get_parameter("k").value == 32
+        assert n.get_parameter("k").value == 32 and _k_in_force(n) == 32
+        assert n.set_parameters([Parameter("method", value="learned")])[0].successful
+        assert n.get_parameter("k").value == 32 and _k_in_force(n) == 32
     finally:
         n.stop()
         n.destroy_node()
@@ -168,6 +210,7 @@ def test_a_k_override_is_kept(context: Context) -> None:
         {"radius": -1.0},
         {"radius": 0},  # an integer for a double parameter
         {"k": 1},
+        {"k": -3},
         {"method": "svm"},
         {"device": "cuda:99"},
         {"viewpoint": [1.0]},

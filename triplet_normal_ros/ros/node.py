@@ -33,7 +33,7 @@ from ..core.orientation import orient_towards_viewpoint
 from ..errors import CheckpointError, CloudFormatError, EstimationCancelled, EstimatorError
 from ..io.pointcloud2 import empty_with_normals, read_xyz, with_normals
 from .mailbox import Mailbox
-from .params import SPECS, NodeSettings, ParamSpec, apply, needs_reload, validate_all
+from .params import K_METHOD_DEFAULT, SPECS, NodeSettings, ParamSpec, apply, needs_reload, validate_all
 from .stats import ProcessingStats
 
 NODE_NAME = "triplet_normal"
@@ -82,6 +82,11 @@ def _failure(reason: str) -> SetParametersResult:
     return SetParametersResult(successful=False, reason=reason)
 
 
+def _k(estimator: NormalEstimator, settings: NodeSettings) -> int:
+    """The k in force: the parameter, or the estimator's own default (checkpoint or PCA) when it is 0."""
+    return estimator.default_k if settings.k == K_METHOD_DEFAULT else settings.k
+
+
 class TripletNormalNode(Node):
     """Subscribes to ``input``, publishes ``output``; raises StartupError when it cannot run."""
 
@@ -89,9 +94,6 @@ class TripletNormalNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         settings = self._declare_parameters()
         estimator = self._build(settings, StartupError)
-        if settings.k != estimator.k:
-            settings = apply(settings, {"k": estimator.k})
-            self.set_parameters([Parameter("k", value=estimator.k)])
         self._active: tuple[NormalEstimator, NodeSettings] = (estimator, settings)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -122,14 +124,11 @@ class TripletNormalNode(Node):
     # -- parameters -------------------------------------------------------------------------------------------------
 
     def _declare_parameters(self) -> NodeSettings:
-        """Declare every parameter with its descriptor; ``k`` has no static default (it comes from the checkpoint)."""
+        """Declare every parameter with its default and descriptor; validate the values given at start-up."""
         values: dict[str, Any] = {}
         try:
             for spec in SPECS:
-                default = _PARAM_TYPES[int] if spec.name == "k" else spec.default
-                value = self.declare_parameter(spec.name, default, _descriptor(spec)).value
-                if value is not None:
-                    values[spec.name] = value
+                values[spec.name] = self.declare_parameter(spec.name, spec.default, _descriptor(spec)).value
         except ParameterException as error:
             raise StartupError(_reason(error)) from None
         reason = validate_all(values)
@@ -166,7 +165,7 @@ class TripletNormalNode(Node):
     def _describe(estimator: NormalEstimator, s: NodeSettings) -> str:
         source = "" if s.method == "pca" else f", checkpoint={s.checkpoint or 'default'}"
         return (
-            f"method={s.method}{source}, device={estimator.device}, radius={s.radius:g} m, k={s.k}, "
+            f"method={s.method}{source}, device={estimator.device}, radius={s.radius:g} m, k={_k(estimator, s)}, "
             f"batch_size={s.batch_size}, orient={s.orient}, viewpoint={list(s.viewpoint)}"
         )
 
@@ -209,7 +208,7 @@ class TripletNormalNode(Node):
                 "cloud has no finite points; publishing NaN normals", throttle_duration_sec=THROTTLE_S
             )
             return np.full((len(points), 3), np.nan, np.float32), np.full(len(points), np.nan, np.float32)
-        estimator.radius, estimator.k, estimator.batch_size = s.radius, s.k, s.batch_size
+        estimator.radius, estimator.k, estimator.batch_size = s.radius, _k(estimator, s), s.batch_size
         # Holes (non-finite xyz) are skipped by the estimator itself and come back as NaN rows.
         normals, curvature = estimator.estimate(points, cancel=self._cancel)
         if s.orient:

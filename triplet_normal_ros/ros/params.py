@@ -11,14 +11,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ..core.conventions import METHODS
+from ..core.conventions import METHODS, MIN_NEIGHBOURS, PCA_DEFAULT_K
 from ..core.device import validate_device_name
 
 #: Parameters whose change builds a new estimator (loading the checkpoint); the rest apply to the next cloud in place.
 RELOAD_PARAMS = frozenset({"method", "checkpoint", "device"})
 
-#: Value of ``k`` that means "the estimator's default" (the checkpoint's k, 500 for pca) in :class:`NodeSettings`.
-K_FROM_CHECKPOINT = 0
+#: Value of ``k`` that means "the method's default": the checkpoint's k for learned, PCA_DEFAULT_K for pca.
+K_METHOD_DEFAULT = 0
 
 
 @dataclass(frozen=True)
@@ -54,7 +54,15 @@ SPECS: tuple[ParamSpec, ...] = (
     ),
     ParamSpec("batch_size", int, 256, "Patches per forward pass of the learned method.", (1, 1 << 20)),
     ParamSpec("radius", float, 0.03, "Neighbourhood ball radius in metres (> 0).", (1e-4, 100.0)),
-    ParamSpec("k", int, 500, "Points per patch (>= 3); the default comes from the checkpoint, else 500.", (3, 100_000)),
+    ParamSpec(
+        "k",
+        int,
+        K_METHOD_DEFAULT,
+        "learned: points per patch; pca: most neighbours per point (the nearest k inside the radius). "
+        f"{K_METHOD_DEFAULT} means the method's default: the checkpoint's k for learned, {PCA_DEFAULT_K} for pca.",
+        (K_METHOD_DEFAULT, 100_000),
+        f"{K_METHOD_DEFAULT} or >= {MIN_NEIGHBOURS}",
+    ),
     ParamSpec("orient", bool, True, "Flip normals toward 'viewpoint' (PCL's flipNormalTowardsViewpoint)."),
     ParamSpec(
         "viewpoint",
@@ -79,17 +87,17 @@ class NodeSettings:
     device: str = "auto"
     batch_size: int = 256
     radius: float = 0.03
-    k: int = K_FROM_CHECKPOINT
+    k: int = K_METHOD_DEFAULT
     orient: bool = True
     viewpoint: tuple[float, float, float] = (0.0, 0.0, 0.0)
     stats_period: float = 5.0
 
     def estimator_args(self) -> dict[str, Any]:
-        """Keyword arguments for ``NormalEstimator``; k=None lets the estimator take the checkpoint's k."""
+        """Keyword arguments for ``NormalEstimator``; k=None lets the estimator take its method's default."""
         return {
             "method": self.method,
             "radius": self.radius,
-            "k": self.k if self.k != K_FROM_CHECKPOINT else None,
+            "k": self.k if self.k != K_METHOD_DEFAULT else None,
             "checkpoint": self.checkpoint or None,
             "device": self.device,
             "batch_size": self.batch_size,
@@ -120,6 +128,8 @@ def _check_value(name: str, value: Any) -> str | None:
         return f"method must be one of {', '.join(METHODS)}, got {value!r}"
     if name == "device":
         return validate_device_name(value)
+    if name == "k" and value != K_METHOD_DEFAULT and value < MIN_NEIGHBOURS:
+        return f"k must be {K_METHOD_DEFAULT} (the method's default) or >= {MIN_NEIGHBOURS}, got {value!r}"
     if name == "radius" and not value > 0:
         return f"radius must be > 0 metres, got {value!r}"
     if name == "viewpoint" and not _is_point(value):
