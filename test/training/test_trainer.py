@@ -85,7 +85,7 @@ def test_triplets_obey_the_angle_threshold_and_stay_close():
     points, normals = cloud.points.astype(np.float64), cloud.normals.astype(np.float64)
     index, rng = NeighbourIndex(points), np.random.default_rng(0)
     anchors = rng.choice(len(points), 300, replace=False)
-    positive, negative = mine_triplets(index, normals, anchors, 0.05, rng)
+    positive, negative = mine_triplets(index, normals, anchors, 0.05)
     assert (positive >= 0).all() and (negative >= 0).all()
     cos_th = math.cos(math.radians(20))
     assert (np.einsum("ij,ij->i", normals[anchors], normals[positive]) >= cos_th).all()

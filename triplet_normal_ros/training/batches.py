@@ -55,7 +55,7 @@ class CloudSampler:
         anchors = rng.choice(
             np.flatnonzero(self.index.finite), size=min(n, int(self.index.finite.sum())), replace=False
         )
-        positive, negative = mine_triplets(self.index, self.normals, anchors, self.radius, rng, POOL_FACTOR * self.k)
+        positive, negative = mine_triplets(self.index, self.normals, anchors, self.radius, pool=POOL_FACTOR * self.k)
         keep = (positive >= 0) & (negative >= 0)
         anchors, positive, negative = anchors[keep], positive[keep], negative[keep]
         a = self.patches(anchors, generator)

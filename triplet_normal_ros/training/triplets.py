@@ -23,13 +23,12 @@ def mine_triplets(
     normals: np.ndarray,
     anchors: np.ndarray,
     radius: float,
-    rng: np.random.Generator | None = None,
     pool: int = 512,
     threshold_deg: float = THRESHOLD_DEG,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Positive and negative centre indices (A,) for anchor indices (A,); -1 where the cloud has none at all.
 
-    `rng` is accepted for API stability; the search itself is deterministic (nearest qualifying point).
+    The search is deterministic (the nearest qualifying point), so it draws no random numbers.
     """
     cos_th = math.cos(math.radians(threshold_deg))
     positive = np.full(len(anchors), -1, dtype=np.int64)
