@@ -10,12 +10,13 @@ drift, not for regressions.
 
 import numpy as np
 import pytest
+from helpers import HELDOUT_SHAPE, heldout_cad_cloud
 
 from triplet_normal_ros.core.checkpoint import default_checkpoint_path, read_metadata
 from triplet_normal_ros.core.conventions import POOL_FACTOR, bbox_diagonal
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.evaluation.metrics import msae
-from triplet_normal_ros.training.dataset import HELDOUT_SHAPE, build_dataset, heldout_cad_cloud
+from triplet_normal_ros.training.dataset import build_dataset
 
 QUERIES = 5000
 SMOOTH_SHAPE = "ellipsoid_flat"

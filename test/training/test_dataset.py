@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from helpers import heldout_cad_cloud
 from scipy import stats
 
 from triplet_normal_ros.training import dataset as td
@@ -185,8 +186,9 @@ def test_bad_split_or_shape_is_one_clear_error(tmp_path) -> None:
 
 
 def test_heldout_cad_cloud_is_validation_cad() -> None:
-    cloud = td.heldout_cad_cloud(n_points=3000)
+    """The accuracy tests' cloud (test/helpers.py) must be CAD the training set never contains."""
+    cloud = heldout_cad_cloud(n_points=3000)
     assert cloud.kind == "cad" and cloud.noise == 0.01
     assert cloud.name in {s.name for s in catalogue("val")} and cloud.name not in {s.name for s in TRAIN_SHAPES}
     assert cloud.points.shape == cloud.normals.shape == (3000, 3)
-    assert cloud.points.tobytes() == td.heldout_cad_cloud(n_points=3000).points.tobytes()
+    assert cloud.points.tobytes() == heldout_cad_cloud(n_points=3000).points.tobytes()

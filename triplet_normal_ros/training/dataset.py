@@ -26,7 +26,6 @@ from .shapes import ShapeSpec, catalogue
 NOISE_LEVELS: tuple[float, ...] = (0.0, 0.0025, 0.005, 0.01, 0.015, 0.025)  # clean + the paper's five, × bbox diagonal
 CODE_VERSION = 1  # bump when sampling or a shape changes, so stale cache entries are never read
 CACHE_ENV = "TRIPLET_NORMAL_CACHE"
-HELDOUT_SHAPE = "v_notch_block"
 
 
 @dataclass
@@ -187,41 +186,3 @@ def build_dataset(
             noisy = add_noise(points, level, _seed(seed, spec.name, round(level * 1e6))) if level > 0 else points
             clouds.append(Cloud(spec.name, spec.kind, level, noisy, normals))
     return clouds
-
-
-def heldout_cad_cloud(n_points: int = 20_000, noise: float = 0.01, seed: int = 123) -> Cloud:
-    """A small noisy CAD cloud from the validation catalogue (never trained on), for accuracy regression tests."""
-    spec = next(s for s in catalogue("val") if s.name == HELDOUT_SHAPE)
-    points, normals = sample_shape(spec, n_points, _seed(seed, spec.name, "sample"))
-    noisy = add_noise(points, noise, _seed(seed, spec.name, round(noise * 1e6))) if noise > 0 else points
-    return Cloud(spec.name, spec.kind, noise, noisy, normals)
-
-
-def plot_catalogue(path: str | Path, n_points: int = 4000, seed: int = 0) -> Path:
-    """A 3-D scatter grid of every training and validation shape, coloured by normal (RGB = (n + 1) / 2)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    specs = [(split, spec) for split in ("train", "val") for spec in catalogue(split)]
-    cols = 6
-    rows = -(-len(specs) // cols)
-    fig = plt.figure(figsize=(2.6 * cols, 2.6 * rows))
-    elev, azim = np.radians(25.0), np.radians(-55.0)
-    towards_camera = np.array([np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)])
-    for i, (split, spec) in enumerate(specs):
-        points, normals = sample_shape(spec, n_points, seed)
-        front = normals @ towards_camera > 0  # back-face culling: see-through clouds are unreadable
-        ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
-        ax.view_init(np.degrees(elev), np.degrees(azim))
-        ax.scatter(*points[front].T, c=(normals[front] + 1) / 2, s=2.0, linewidths=0, depthshade=False)
-        ax.set_title(f"{spec.name}\n{split} · {spec.kind}", fontsize=8)
-        ax.set_box_aspect(np.ptp(points, axis=0))
-        ax.set_axis_off()
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=72)
-    plt.close(fig)
-    return path
