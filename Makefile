@@ -1,4 +1,4 @@
-# Two user-facing targets: `make demo` and `make test`. Both refresh .venv/ through `make venv`.
+# User-facing targets: `make demo`, `make test` and `make test-fast`. Each refreshes .venv/ through `make venv`.
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
@@ -17,7 +17,7 @@ PINS := \
 	tqdm==4.70.1 matplotlib==3.11.2 \
 	pytest==9.2.0 hypothesis==6.170.15 ruff==0.17.6
 
-.PHONY: venv demo test lint bench eval train clean
+.PHONY: venv demo test test-fast lint bench eval train clean
 
 venv: $(STAMP)
 
@@ -38,9 +38,14 @@ demo: venv
 lint: venv
 	$(VENV)/bin/ruff check --config .ci/ruff.toml triplet_normal_ros test
 
-# `make test`: lint, then every test (includes a colcon build and the node as a separate process).
+# `make test` (CI): lint, then every test, including the `slow` ones (colcon builds, the node as a separate process,
+# training runs, accuracy checks of the shipped checkpoint, eval --quick, CLI subprocesses).
 test: venv lint
-	$(PY) -m pytest test -q
+	$(PY) -m pytest test -q --strict-markers
+
+# `make test-fast`: the tests not marked `slow`, for the edit-test loop; `make test` before committing.
+test-fast: venv
+	$(PY) -m pytest test -q --strict-markers -m "not slow"
 
 # Offline tools on the shipped data and checkpoint (see docs/CLI.md, docs/TRAINING.md).
 train: venv

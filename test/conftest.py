@@ -1,7 +1,8 @@
 """Shared fixtures: a colcon-built install of this package and a way to run its installed ``node`` as a process.
 
 The ROS graph is kept private to the test run: localhost-only discovery and a random domain id, so parallel runs and
-other ROS users on the machine do not see each other.
+other ROS users on the machine do not see each other. Caches (generated training shapes, matplotlib, torch, ROS logs)
+go to the repository's git-ignored ``.cache/``, never under $HOME. ``slow`` marks what ``make test-fast`` skips.
 """
 
 from __future__ import annotations
@@ -21,6 +22,36 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = "triplet_normal_ros"
 COLCON = Path(sys.executable).with_name("colcon")
+#: Where the tests keep what they cache between runs: inside the repository, git-ignored (.gitignore has .cache/).
+TEST_CACHE = REPO / ".cache"
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers",
+        "slow: colcon builds, node processes, training runs, accuracy checks of the shipped checkpoint, eval --quick "
+        "and subprocess CLI runs (make test-fast deselects them; make test runs everything)",
+    )
+
+
+@pytest.fixture(scope="session", autouse=True)
+def private_caches() -> Iterator[dict[str, str]]:
+    """Point every cache the tests (and the processes they start) would fill under $HOME at TEST_CACHE instead.
+
+    The generated-data cache persists there between runs, so only the first run pays for generating the shapes.
+    """
+    paths = {
+        "TRIPLET_NORMAL_CACHE": TEST_CACHE / "test-data",  # training.dataset.default_cache_dir
+        "MPLCONFIGDIR": TEST_CACHE / "test-matplotlib",
+        "TORCH_HOME": TEST_CACHE / "test-torch",
+        "XDG_CACHE_HOME": TEST_CACHE / "test-xdg",
+        "ROS_HOME": TEST_CACHE / "test-ros",  # rcl's file logs (ROS_HOME/log)
+    }
+    with pytest.MonkeyPatch.context() as patch:
+        for name, path in paths.items():
+            path.mkdir(parents=True, exist_ok=True)
+            patch.setenv(name, str(path))
+        yield {name: str(path) for name, path in paths.items()}
 
 
 @pytest.fixture(scope="session")

@@ -14,6 +14,8 @@ from triplet_normal_ros.evaluation.plots import normals_scatter
 from triplet_normal_ros.evaluation.report import read_section, update_section
 from triplet_normal_ros.io.cloud_files import read_cloud, read_normals_file, write_points
 
+pytestmark = pytest.mark.slow  # subprocess CLI runs and eval --quick: `make test-fast` deselects this module
+
 SCRIPT = Path(sys.executable).with_name("triplet-normal")
 
 

@@ -18,6 +18,8 @@ from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.evaluation.metrics import msae
 from triplet_normal_ros.training.dataset import build_dataset
 
+pytestmark = pytest.mark.slow  # accuracy checks of the shipped checkpoint: `make test-fast` deselects this module
+
 QUERIES = 5000
 SMOOTH_SHAPE = "ellipsoid_flat"
 

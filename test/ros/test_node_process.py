@@ -1,7 +1,8 @@
 """The real thing across processes: colcon-build the package, run the installed ``node``, talk to it over DDS.
 
 The node runs in its own process; this test process publishes real Kinect frames and receives the answers through
-its own rclpy context (``CloudClient``). Full frames use ``pca`` (fast); ``learned`` runs on a small crop.
+its own rclpy context (``ProbeClient``: the demo's ``CloudClient`` plus test-only calls). Full frames use ``pca``
+(fast); ``learned`` runs on a small crop.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cloud_client import ProbeClient, cropped
 from conftest import PACKAGE, NodeProcess, installed_env, params_yaml, site_packages
 from scipy.spatial import cKDTree
 from sensor_msgs.msg import PointCloud2, PointField
@@ -24,7 +26,9 @@ from sensor_msgs.msg import PointCloud2, PointField
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.orientation import orient_towards_viewpoint
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, make_cloud, read_field, read_xyz
-from triplet_normal_ros.ros.replay import CloudClient, Frame, load_frame
+from triplet_normal_ros.ros.replay import Frame, load_frame
+
+pytestmark = pytest.mark.slow  # colcon builds and node processes
 
 IN, OUT = "/tn_test/points", "/tn_test/normals"
 RADIUS, K = 0.03, 24
@@ -47,8 +51,8 @@ def pca_node(install_prefix: Path, ros_env: dict[str, str], tmp_path_factory) ->
 
 
 @pytest.fixture(scope="module")
-def client(pca_node: NodeProcess) -> Iterator[CloudClient]:
-    with CloudClient(IN, OUT) as c:
+def client(pca_node: NodeProcess) -> Iterator[ProbeClient]:
+    with ProbeClient(IN, OUT) as c:
         assert c.wait_for_node(30), "the node's topics and parameter services never matched"
         yield c
 
@@ -58,8 +62,8 @@ def frame() -> Frame:
     return load_frame("table_scene_mug")
 
 
-def small_cloud(client: CloudClient, frame: Frame) -> PointCloud2:
-    return frame.cropped(200, 300, 20, 20).to_cloud(client.header())
+def small_cloud(client: ProbeClient, frame: Frame) -> PointCloud2:
+    return cropped(frame, 200, 300, 20, 20).to_cloud(client.header())
 
 
 def normals_of(msg: PointCloud2) -> np.ndarray:
@@ -105,7 +109,7 @@ def test_the_installed_copy_is_what_runs(install_prefix: Path, ros_env: dict[str
 # -- a real frame ---------------------------------------------------------------------------------------------------
 
 
-def test_full_kinect_frame(client: CloudClient, frame: Frame) -> None:
+def test_full_kinect_frame(client: ProbeClient, frame: Frame) -> None:
     sent = frame.to_cloud(client.header())
     out = client.request(sent, timeout=120)
     assert out is not None, "no answer to a full 640x480 frame"
@@ -136,11 +140,11 @@ def test_full_kinect_frame(client: CloudClient, frame: Frame) -> None:
     np.testing.assert_allclose(curvature[finite], ref_curv, atol=1e-5)
 
 
-def test_learned_method_on_a_small_crop(client: CloudClient, frame: Frame) -> None:
+def test_learned_method_on_a_small_crop(client: ProbeClient, frame: Frame) -> None:
     ok, reason = client.set_parameters({"method": "learned"})
     assert ok, reason
     try:
-        crop = frame.cropped(180, 260, 40, 40)  # 1600 points: the learned net is ~1-3k points/s on this CPU
+        crop = cropped(frame, 180, 260, 40, 40)  # 1600 points: the learned net is ~1-3k points/s on this CPU
         sent = crop.to_cloud(client.header())
         out = client.request(sent, timeout=120)
         assert out is not None
@@ -168,14 +172,14 @@ def test_learned_method_on_a_small_crop(client: CloudClient, frame: Frame) -> No
         ({"stats_period": 2.0}, "read-only"),
     ],
 )
-def test_bad_parameters_are_rejected_with_a_reason(client: CloudClient, values: dict, reason: str) -> None:
+def test_bad_parameters_are_rejected_with_a_reason(client: ProbeClient, values: dict, reason: str) -> None:
     ok, why = client.set_parameters(values)
     assert not ok
     assert reason in why
 
 
-def test_parameter_changes_apply_to_the_next_cloud(client: CloudClient, frame: Frame) -> None:
-    crop = frame.cropped(200, 300, 20, 20)
+def test_parameter_changes_apply_to_the_next_cloud(client: ProbeClient, frame: Frame) -> None:
+    crop = cropped(frame, 200, 300, 20, 20)
     assert client.set_parameters({"viewpoint": [0.0, 0.0, 10.0]})[0]  # behind the scene: normals flip
     try:
         sent = crop.to_cloud(client.header())
@@ -191,7 +195,7 @@ def test_parameter_changes_apply_to_the_next_cloud(client: CloudClient, frame: F
 # -- bad input ------------------------------------------------------------------------------------------------------
 
 
-def _raw_cloud(client: CloudClient, fields: list[PointField], point_step: int, data: bytes, n: int = 4) -> PointCloud2:
+def _raw_cloud(client: ProbeClient, fields: list[PointField], point_step: int, data: bytes, n: int = 4) -> PointCloud2:
     msg = PointCloud2(header=client.header(), height=1, width=n, fields=fields, point_step=point_step)
     msg.row_step = n * point_step
     msg.data = array.array("B")
@@ -203,7 +207,7 @@ def _xyz_fields(datatype: int = PointField.FLOAT32, size: int = 4) -> list[Point
     return [PointField(name=a, offset=i * size, datatype=datatype, count=1) for i, a in enumerate("xyz")]
 
 
-def malformed_clouds(client: CloudClient) -> dict[str, PointCloud2]:
+def malformed_clouds(client: ProbeClient) -> dict[str, PointCloud2]:
     good = bytes(4 * 12)
     return {
         "missing z": _raw_cloud(client, _xyz_fields()[:2], 12, good),
@@ -217,7 +221,7 @@ def malformed_clouds(client: CloudClient) -> dict[str, PointCloud2]:
 
 
 def test_malformed_clouds_are_skipped_and_the_node_keeps_serving(
-    client: CloudClient, pca_node: NodeProcess, frame: Frame
+    client: ProbeClient, pca_node: NodeProcess, frame: Frame
 ) -> None:
     before = _total_rejected(pca_node)
     bad = malformed_clouds(client)
@@ -235,7 +239,7 @@ def _total_rejected(node: NodeProcess) -> int:
     return int(totals[-1]) if totals else 0
 
 
-def test_empty_cloud_gets_an_empty_answer_with_normal_fields(client: CloudClient) -> None:
+def test_empty_cloud_gets_an_empty_answer_with_normal_fields(client: ProbeClient) -> None:
     sent = PointCloud2(header=client.header(), height=1, width=0, fields=_xyz_fields(), point_step=12)
     out = client.request(sent, timeout=30)
     assert out is not None
@@ -243,7 +247,7 @@ def test_empty_cloud_gets_an_empty_answer_with_normal_fields(client: CloudClient
     assert [f.name for f in out.fields] == ["x", "y", "z", *NORMAL_FIELDS]
 
 
-def test_all_nan_cloud_gets_nan_normals(client: CloudClient, pca_node: NodeProcess) -> None:
+def test_all_nan_cloud_gets_nan_normals(client: ProbeClient, pca_node: NodeProcess) -> None:
     n = 50
     nan = np.full(n, np.nan, np.float32)
     sent = make_cloud(
@@ -260,7 +264,7 @@ def test_all_nan_cloud_gets_nan_normals(client: CloudClient, pca_node: NodeProce
 # -- shutdown -------------------------------------------------------------------------------------------------------
 
 
-def test_sigint_during_an_estimate_exits_cleanly(client: CloudClient, pca_node: NodeProcess, frame: Frame) -> None:
+def test_sigint_during_an_estimate_exits_cleanly(client: ProbeClient, pca_node: NodeProcess, frame: Frame) -> None:
     """Last in this module: it ends the shared node. A learned full frame takes minutes, so it is surely in flight."""
     assert client.set_parameters({"method": "learned"})[0]
     client.send(frame.to_cloud(client.header()))
@@ -284,9 +288,9 @@ def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, insta
     node = start_node(shipped, {"input": "/tn_term/in", "output": "/tn_term/out"})
     assert node.wait_for_log("ready:", 60), node.log
     assert "method=learned, checkpoint=default" in node.log
-    with CloudClient("/tn_term/in", "/tn_term/out") as c:
+    with ProbeClient("/tn_term/in", "/tn_term/out") as c:
         assert c.wait_for_node(30)
-        out = c.request(small_cloud(c, frame), timeout=60, resend_every=5.0)
+        out = c.request_resending(small_cloud(c, frame), timeout=60, every=5.0)
         assert out is not None
         assert np.isfinite(normals_of(out)).all(axis=1).sum() > 300
     code, seconds = node.stop(signal.SIGTERM)

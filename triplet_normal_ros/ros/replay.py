@@ -1,7 +1,7 @@
 """Replay the shipped Kinect frames into a running node and collect its answers, from a separate process.
 
-Used by ``make demo`` and the cross-process test. :class:`CloudClient` owns its own rclpy context, so it can live in
-a test process (or beside other nodes) without touching the default context.
+Used by ``make demo`` (and, extended under test/ros/, by the cross-process tests). :class:`CloudClient` owns its own
+rclpy context, so it can live in a test process (or beside other nodes) without touching the default context.
 """
 
 from __future__ import annotations
@@ -49,11 +49,6 @@ class Frame:
     def decimated(self, step: int) -> Frame:
         """Every ``step``-th row and column: an organized frame ``step``² times smaller (what the demo replays)."""
         return Frame(f"{self.name}/{step}", self.xyz[::step, ::step], self.rgb[::step, ::step])
-
-    def cropped(self, top: int, left: int, height: int, width: int) -> Frame:
-        """A rectangular window, still organized."""
-        rows, cols = slice(top, top + height), slice(left, left + width)
-        return Frame(f"{self.name}[{top}:{left}]", self.xyz[rows, cols], self.rgb[rows, cols])
 
     def to_cloud(self, header: Header) -> PointCloud2:
         """x, y, z FLOAT32 plus ``rgb`` as PCL publishes it (the packed uint32 bits in a FLOAT32 field)."""
@@ -117,25 +112,11 @@ class CloudClient:
         """A header with a fresh stamp, which is how an answer is matched to its request."""
         return Header(stamp=self.node.get_clock().now().to_msg(), frame_id=frame_id)
 
-    def send(self, cloud: PointCloud2) -> None:
-        """Publish without waiting (for clouds the node is expected to reject)."""
-        self._publisher.publish(cloud)
-
-    def request(
-        self, cloud: PointCloud2, timeout: float = 60.0, resend_every: float | None = None
-    ) -> PointCloud2 | None:
-        """Publish ``cloud`` and return the node's answer with the same stamp, or None after ``timeout`` s.
-
-        ``resend_every`` republishes the same cloud while unanswered: a best-effort subscription may lose it.
-        """
+    def request(self, cloud: PointCloud2, timeout: float = 60.0) -> PointCloud2 | None:
+        """Publish ``cloud`` and return the node's answer with the same stamp, or None after ``timeout`` s."""
         key = (cloud.header.stamp.sec, cloud.header.stamp.nanosec)
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            self._publisher.publish(cloud)
-            wait = deadline - time.monotonic() if resend_every is None else resend_every
-            if self._spin_until(lambda: key in self._answers, min(wait, deadline - time.monotonic())):
-                return self._answers.pop(key)
-        return None
+        self._publisher.publish(cloud)
+        return self._answers.pop(key) if self._spin_until(lambda: key in self._answers, timeout) else None
 
     def set_parameters(self, values: Mapping[str, Any], timeout: float = 60.0) -> tuple[bool, str]:
         """Set ``values`` atomically on the node; (successful, reason)."""
@@ -144,10 +125,6 @@ class CloudClient:
             return False, f"no answer from the parameter service within {timeout} s"
         result = future.result().result
         return result.successful, result.reason
-
-    def spin_for(self, seconds: float) -> None:
-        """Keep serving callbacks for ``seconds`` (lets DDS deliver what was sent)."""
-        self._spin_until(lambda: False, seconds)
 
     def close(self) -> None:
         self._executor.shutdown(timeout_sec=1.0)
