@@ -19,6 +19,8 @@ from triplet_normal_ros.training.dataset import build_dataset
 from triplet_normal_ros.training.recipes import RECIPES
 from triplet_normal_ros.training.triplets import mine_triplets
 
+pytestmark = pytest.mark.slow  # training runs: `make test-fast` deselects this module
+
 TOY = (
     "--shapes box_3x2x1 sphere --val-shapes v_notch_block --n-points 3000 --k 32 --patches-per-shape 96 "
     "--regressor-patches-per-shape 256 --val-patches-per-cloud 16 --encoder-widths 16 32 --regressor-widths 32 "
