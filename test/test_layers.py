@@ -1,0 +1,208 @@
+"""The package's layering: imports run downward only, there are no cycles, and only ros/ needs rclpy.
+
+Layer order: errors < core, io < training < evaluation < cli < ros. core and io share a layer but do not import each
+other, and io does not import torch (message and file conversion stay light). The static checks read every module's
+source with ``ast``, imports inside functions included, so a lazy upward import counts too. The dynamic check imports
+every module below ros/ in a fresh interpreter where rclpy cannot be imported (marked slow: it starts a process).
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import triplet_normal_ros
+
+ROOT = triplet_normal_ros.__name__
+PACKAGE_DIR = Path(triplet_normal_ros.__file__).parent
+#: Rank of each top-level part; the root package itself (``__version__`` only) ranks with errors.
+LAYERS = {"": 0, "errors": 0, "core": 1, "io": 1, "training": 2, "evaluation": 3, "cli": 4, "ros": 5}
+#: Pairs of parts of the same rank that must not import each other either way.
+APART = {("core", "io"), ("io", "core")}
+#: Third-party imports a part must not make, each with the reason.
+FORBIDDEN = {"io": {"torch": "io converts messages and files, it needs no torch"}}
+ROS_ONLY = "rclpy"
+ROS_FREE = ("core", "io", "training", "evaluation")
+
+
+def module_files() -> dict[str, Path]:
+    """Every module of the package by dotted name (a package by its own name, for its ``__init__``)."""
+    modules = {}
+    for path in sorted(PACKAGE_DIR.rglob("*.py")):
+        parts = path.relative_to(PACKAGE_DIR.parent).with_suffix("").parts
+        modules[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return modules
+
+
+MODULES = module_files()
+
+
+def imports_of(module: str, source: str, is_package: bool, known: set[str]) -> set[str]:
+    """Absolute names ``source`` imports anywhere, functions too; ``from x import y`` gives x.y if that is a module."""
+    package = module if is_package else module.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                origin = ".".join(base + ([node.module] if node.module else []))
+            else:
+                origin = node.module or ""
+            found.update(f"{origin}.{a.name}" if f"{origin}.{a.name}" in known else origin for a in node.names)
+    return found
+
+
+def part(module: str) -> str:
+    """The top-level part a module of ours belongs to ('' for the root package)."""
+    return module.split(".")[1] if "." in module else ""
+
+
+def graph(sources: dict[str, tuple[str, bool]]) -> dict[str, set[str]]:
+    """module -> every name it imports; ``sources`` maps module -> (source, is_package)."""
+    known = set(sources)
+    return {m: imports_of(m, src, is_pkg, known) for m, (src, is_pkg) in sources.items()}
+
+
+def violations(edges: dict[str, set[str]]) -> list[str]:
+    """Every import that runs upward, crosses core/io, or pulls in what a part must not import."""
+    found = []
+    for src, targets in sorted(edges.items()):
+        for dst in sorted(targets):
+            if dst == ROOT or dst.startswith(ROOT + "."):
+                a, b = part(src), part(dst)
+                if LAYERS[b] > LAYERS[a] or (a, b) in APART:
+                    found.append(f"{src} imports {dst} ({a or ROOT} may not import {b})")
+            else:
+                top = dst.split(".")[0]
+                why = FORBIDDEN.get(part(src), {}).get(top)
+                if why:
+                    found.append(f"{src} imports {dst}: {why}")
+                if top == ROS_ONLY and part(src) != "ros":
+                    found.append(f"{src} imports {dst}: only ros/ may import {ROS_ONLY}")
+    return found
+
+
+def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """The import cycles among the modules in ``edges``: strongly connected components of two or more, self-loops."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:  # Tarjan; the package has a few dozen modules, recursion depth is no concern
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(edges[v] & edges.keys()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while (w := stack.pop()) != v:
+                component.append(w)
+            component.append(v)
+            if len(component) > 1 or v in edges[v]:
+                found.append(sorted(component))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def package_graph() -> dict[str, set[str]]:
+    return graph({m: (p.read_text(), p.name == "__init__.py") for m, p in MODULES.items()})
+
+
+def test_every_module_belongs_to_a_known_layer_and_every_layer_has_modules() -> None:
+    parts = {part(m) for m in MODULES}
+    assert parts <= LAYERS.keys(), sorted(parts - LAYERS.keys())
+    assert parts == LAYERS.keys()  # a renamed or emptied part would make the checks below pass vacuously
+
+
+def test_imports_run_downward_only() -> None:
+    assert violations(package_graph()) == []
+
+
+def test_there_is_no_import_cycle() -> None:
+    assert cycles(package_graph()) == []
+
+
+def test_the_checks_catch_what_they_are_for() -> None:
+    """Planted faults, so the two tests above can fail for the right reason: relative imports resolve, upward and
+    sideways imports, forbidden libraries and cycles are reported."""
+    sources = {
+        ROOT: ("", True),
+        f"{ROOT}.core": ("", True),
+        f"{ROOT}.core.a": ("from . import b\ndef f():\n    from ..ros.node import Node\n", False),
+        f"{ROOT}.core.b": ("from .a import thing\nimport triplet_normal_ros.io.c\n", False),
+        f"{ROOT}.io": ("", True),
+        f"{ROOT}.io.c": ("import torch\nfrom rclpy.node import Node\nfrom .. import __version__\n", False),
+        f"{ROOT}.ros": ("", True),
+        f"{ROOT}.ros.node": ("import rclpy\nfrom ..core import a\n", False),
+    }
+    edges = graph(sources)
+    assert edges[f"{ROOT}.core.a"] == {f"{ROOT}.core.b", f"{ROOT}.ros.node"}
+    assert edges[f"{ROOT}.io.c"] == {"torch", "rclpy.node", ROOT}
+    assert edges[f"{ROOT}.ros.node"] == {"rclpy", f"{ROOT}.core.a"}
+    assert violations(edges) == [
+        f"{ROOT}.core.a imports {ROOT}.ros.node (core may not import ros)",
+        f"{ROOT}.core.b imports {ROOT}.io.c (core may not import io)",
+        f"{ROOT}.io.c imports rclpy.node: only ros/ may import rclpy",
+        f"{ROOT}.io.c imports torch: io converts messages and files, it needs no torch",
+    ]
+    assert cycles(edges) == [[f"{ROOT}.core.a", f"{ROOT}.core.b", f"{ROOT}.ros.node"]]
+
+
+#: Runs in a fresh interpreter: rclpy made unimportable, then every module below ros/ imported.
+_IMPORT_WITHOUT_RCLPY = """
+import importlib, importlib.abc, json, pkgutil, sys
+
+class NoRclpy(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name == "rclpy" or name.startswith("rclpy."):
+            raise ImportError(f"rclpy is blocked in this test ({name})")
+        return None
+
+sys.meta_path.insert(0, NoRclpy())
+imported = ["triplet_normal_ros.errors"]
+importlib.import_module(imported[0])
+for sub in sys.argv[1:]:
+    pkg = importlib.import_module(f"triplet_normal_ros.{sub}")
+    imported.append(pkg.__name__)
+    for info in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + "."):
+        importlib.import_module(info.name)
+        imported.append(info.name)
+try:
+    importlib.import_module("triplet_normal_ros.ros.node")
+    control = "imported"
+except ImportError as error:
+    control = str(error)
+print(json.dumps({"imported": imported, "rclpy_loaded": "rclpy" in sys.modules, "ros_node": control}))
+"""
+
+
+@pytest.mark.slow  # a fresh interpreter importing torch and everything else: seconds; the ast checks above are fast
+def test_everything_below_ros_imports_without_rclpy(tmp_path: Path) -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", _IMPORT_WITHOUT_RCLPY, *ROS_FREE],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    expected = {m for m in MODULES if part(m) in (*ROS_FREE, "errors")}
+    assert set(result["imported"]) == expected  # pkgutil found every module the source walk found
+    assert not result["rclpy_loaded"]
+    assert "rclpy is blocked" in result["ros_node"]  # the control: the block works, so the imports above prove it
