@@ -10,11 +10,13 @@ import pytest
 import torch
 
 from triplet_normal_ros.cli import train
+from triplet_normal_ros.cli.main import main
 from triplet_normal_ros.core.checkpoint import read_metadata
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.neighbours import NeighbourIndex
 from triplet_normal_ros.errors import TrainingError
 from triplet_normal_ros.evaluation.ablation import _variants, reference_estimator
+from triplet_normal_ros.training.batches import CloudSampler
 from triplet_normal_ros.training.dataset import build_dataset
 from triplet_normal_ros.training.recipes import RECIPES
 from triplet_normal_ros.training.triplets import mine_triplets
@@ -72,7 +74,7 @@ def test_checkpoint_records_recipe_and_loads(toy_run):
     assert (toy_run / "training_curves.png").stat().st_size > 10_000
 
 
-def test_resume_continues_where_it_stopped(toy_run, tmp_path):
+def test_resume_continues_where_it_stopped(tmp_path):
     run_dir = tmp_path / "resume"
     train.run(_args("--encoder-epochs 1 --regressor-epochs 2", run_dir))
     first = json.loads((run_dir / "history.json").read_text())["history"]
@@ -80,6 +82,16 @@ def test_resume_continues_where_it_stopped(toy_run, tmp_path):
     resumed = json.loads((run_dir / "history.json").read_text())["history"]
     assert [h["epoch"] for h in resumed if h["phase"] == "regressor"] == [0, 1, 2]
     assert resumed[: len(first)] == first  # earlier epochs are kept, not re-run
+
+
+def test_a_run_stopped_in_phase_c_resumes_there(tmp_path):
+    run_dir = tmp_path / "finetune"
+    common = "--encoder-epochs 1 --regressor-epochs 1 --finetune-patches-per-shape 64"
+    train.run(_args(f"{common} --finetune-epochs 1", run_dir))
+    train.run(_args(f"{common} --finetune-epochs 2 --resume", run_dir))
+    history = json.loads((run_dir / "history.json").read_text())["history"]
+    phases = [(h["phase"], h["epoch"]) for h in history]
+    assert phases == [("encoder", 0), ("regressor", 0), ("finetune", 0), ("finetune", 1)]
 
 
 def test_triplets_obey_the_angle_threshold_and_stay_close():
@@ -103,17 +115,25 @@ def test_triplets_obey_the_angle_threshold_and_stay_close():
     assert np.mean(np.isclose(d_neg, nearest_neg)) > 0.95
 
 
-def test_triplet_patches_share_the_anchor_frame():
-    from triplet_normal_ros.training.batches import CloudSampler
+def _tilt_deg(patches: torch.Tensor) -> np.ndarray:
+    """Per patch, the angle between the least principal axis of its points and +z."""
+    centred = patches.double() - patches.double().mean(dim=1, keepdim=True)
+    _, axes = torch.linalg.eigh(centred.transpose(1, 2) @ centred)
+    return np.degrees(np.arccos(axes[:, 2, 0].abs().clamp(max=1.0).numpy()))
 
+
+def test_triplet_patches_are_seen_in_the_anchor_frame():
+    """In its own PCA frame a patch of a plane lies flat (least axis on +z). Positive and negative patches must be
+    rotated into the anchor's frame instead, or the triplet loss cannot see the turn across an edge: there a negative
+    (normal > 20° from the anchor's) lies tilted, a positive almost flat."""
     cloud = build_dataset("train", n_points=4000, shapes=["wedge"], noise_levels=[0.0], progress=False)[0]
     sampler = CloudSampler(cloud.points, cloud.normals, 0.05, 32)
-    rng, gen = np.random.default_rng(1), torch.Generator().manual_seed(1)
-    anchors = rng.choice(len(cloud.points), 50, replace=False)
-    a = sampler.patches(anchors, gen)
-    s = sampler.patches(anchors, gen, rotation=a.rotation)
-    assert torch.equal(s.rotation, a.rotation)
-    assert s.points.norm(dim=-1).max() <= 1.0 + 1e-5
+    triplets = sampler.triplets(200, np.random.default_rng(1), torch.Generator().manual_seed(1))
+    assert len(triplets.anchor) > 150
+    assert np.median(_tilt_deg(triplets.anchor)) < 5.0
+    assert np.mean(_tilt_deg(triplets.positive) < 20.0) > 0.8
+    assert np.mean(_tilt_deg(triplets.negative) > 20.0) > 0.75  # each in its own frame: none would be
+    assert triplets.positive.norm(dim=-1).max() <= 1.0 + 1e-5  # still the unit ball: scaled by the radius
 
 
 def test_cpu_recipe_options_residual_head_and_relative_loss_reach_the_checkpoint(tmp_path):
@@ -171,7 +191,7 @@ def test_a_relative_floor_without_the_relative_loss_is_refused(tmp_path):
         train.recipe_from_args(args)
 
 
-def test_resuming_under_a_recipe_that_optimises_something_else_is_refused(toy_run, tmp_path):
+def test_resuming_under_a_recipe_that_optimises_something_else_is_refused(tmp_path):
     run_dir = tmp_path / "switch"
     train.run(_args("--encoder-epochs 1 --regressor-epochs 1", run_dir))
     state = torch.load(run_dir / "state.pt", weights_only=True)
@@ -187,3 +207,21 @@ def test_resuming_under_a_recipe_that_optimises_something_else_is_refused(toy_ru
 def test_the_ablation_reference_is_pca_over_the_learned_rows_pool():
     est = reference_estimator(RECIPES["cpu"], "cpu")
     assert est.method == "pca" and est.k == 4 * RECIPES["cpu"].k == 512
+
+
+def test_an_unknown_training_shape_is_one_error_line_from_the_command(tmp_path, capsys):
+    status = main(["train", "--shapes", "nope", "--run-dir", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert status == 1
+    assert len(err.splitlines()) == 1
+    assert err.startswith("triplet-normal: error: unknown train shapes ['nope']; known: [")
+    assert "'box_3x2x1'" in err  # it names the shapes that exist
+
+
+def test_a_run_without_normal_loss_epochs_reports_that_instead_of_crashing(tmp_path, capsys):
+    run_dir = tmp_path / "encoder_only"
+    argv = ["train", *TOY.split(), "--encoder-epochs", "1", "--regressor-epochs", "0", "--run-dir", str(run_dir)]
+    assert main(argv) == 0
+    assert "no normal-loss epoch ran" in capsys.readouterr().out
+    history = json.loads((run_dir / "history.json").read_text())
+    assert [h["phase"] for h in history["history"]] == ["encoder"] and history["final_val_normal_loss"] is None

@@ -91,10 +91,9 @@ def run(args: argparse.Namespace) -> int:
     recipe = recipe_from_args(args)
     out = args.out or args.run_dir / "model.safetensors"
     summary = train(recipe, out, args.run_dir, args.device, args.resume, args.encoder_from)
-    print(
-        f"wrote {out} in {summary['wall_seconds']:.0f} s on {summary['device']}; "
-        f"final validation normal loss {summary['final_val_normal_loss']:.4f}"
-    )
+    final = summary["final_val_normal_loss"]  # None when no phase (b) or (c) epoch ran, e.g. an encoder-only run
+    result = "no normal-loss epoch ran" if final is None else f"final validation normal loss {final:.4f}"
+    print(f"wrote {out} in {summary['wall_seconds']:.0f} s on {summary['device']}; {result}")
     if out.resolve() == default_checkpoint_path():
         print("this replaced the shipped default checkpoint")
     return 0
