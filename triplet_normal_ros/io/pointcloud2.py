@@ -164,7 +164,10 @@ def read_xyz(msg: PointCloud2) -> np.ndarray:
     point_step smaller than the fields' extent; row_step < width*point_step; unknown datatype; field count < 1.
     """
     views = _xyz_views(_layout(msg))
-    xyz = views[0].astype(np.float64) if len(views) == 1 else np.concatenate(views, axis=2, dtype=np.float64)
+    # FLOAT32 -> float64 raises the FPU's 'invalid' flag on a signalling NaN (random or driver-filled bytes); the
+    # value becomes a quiet NaN, which is exactly what we want, so only that flag is ignored, only for this cast.
+    with np.errstate(invalid="ignore"):
+        xyz = views[0].astype(np.float64) if len(views) == 1 else np.concatenate(views, axis=2, dtype=np.float64)
     return xyz.reshape(-1, 3)
 
 
