@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import write_points
 
 from triplet_normal_ros.cli.main import main
 from triplet_normal_ros.evaluation.metrics import rmse_deg
-from triplet_normal_ros.evaluation.plots import normals_scatter
 from triplet_normal_ros.evaluation.report import read_section, update_section
-from triplet_normal_ros.io.cloud_files import read_cloud, read_normals_file, write_points
+from triplet_normal_ros.io.cloud_files import read_cloud, read_normals_file
 
 pytestmark = pytest.mark.slow  # subprocess CLI runs and eval --quick: `make test-fast` deselects this module
 
@@ -187,8 +187,3 @@ def test_eval_without_pcpnet_dir_fails_before_working(tmp_path: Path) -> None:
     assert_one_error_line(done.stderr)
     assert not (tmp_path / "R.md").exists()
 
-
-def test_normals_scatter_writes_png(tmp_path: Path) -> None:
-    points, normals = sphere(300)
-    normals[0] = np.nan
-    assert normals_scatter(tmp_path / "n.png", points, normals).stat().st_size > 5_000

@@ -1,4 +1,4 @@
-"""Pictures for docs/: error heat maps and normals-as-colour scatters (matplotlib, headless Agg backend)."""
+"""Pictures for docs/: angular-error heat maps (matplotlib, headless Agg backend)."""
 
 from pathlib import Path
 
@@ -43,24 +43,6 @@ def error_heatmap(
         _equal_axes(ax, p)
     fig.suptitle(title)
     fig.colorbar(scatter, ax=fig.axes, shrink=0.7, label="angular error (degrees, sign-invariant)")
-    fig.savefig(path)
-    plt.close(fig)
-    return path
-
-
-def normals_scatter(path: str | Path, points: np.ndarray, normals: np.ndarray, title: str = "") -> Path:
-    """3-D scatter coloured by (n + 1) / 2 as RGB, the usual way to eyeball a normal field; NaN rows are grey."""
-    plt = _pyplot()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    keep = _subset(len(points))
-    p, n = np.asarray(points)[keep], np.asarray(normals, dtype=np.float64)[keep]
-    colours = np.where(np.isfinite(n).all(axis=1, keepdims=True), np.clip((n + 1) / 2, 0, 1), 0.5)
-    fig = plt.figure(figsize=(6, 6), dpi=110)
-    ax = fig.add_subplot(projection="3d")
-    ax.scatter(*p.T, c=colours, s=_marker_size(len(p)), linewidths=0)
-    _equal_axes(ax, p)
-    ax.set_title(title)
     fig.savefig(path)
     plt.close(fig)
     return path

@@ -1,11 +1,13 @@
 """Point-cloud files in and out (.xyz .npy .ply .pcd .normals .pidx), chosen by suffix.
 
 Every failure becomes one `CloudFileError` line naming the file, so the CLI can print it without a traceback.
-PLY is parsed here (a header and one numpy dtype) to keep the dependency list short; PCD goes through pypcd4,
-which handles the ascii / binary / binary_compressed encodings and organized clouds.
+PLY and PCD are parsed here (a header and one numpy dtype each), so that a file holding fewer points than its header
+declares, or cut anywhere, is refused with one line instead of being read short or failing deep inside a library;
+PCD's binary_compressed blocks go through lzf (pypcd4's dependency) and PCD files are written with pypcd4.
 """
 
 import re
+import struct
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,8 +68,7 @@ def read_cloud(path: str | Path) -> CloudData:
     reader = readers.get(path.suffix.lower())
     if reader is None:
         raise CloudFileError(f"{path}: unknown point-cloud suffix {path.suffix!r} (use {', '.join(POINT_SUFFIXES)})")
-    if not path.is_file():
-        raise CloudFileError(f"{path}: no such file")
+    _require_file(path)
     try:
         cloud = reader(path)
     except CloudFileError:
@@ -86,13 +87,7 @@ def read_normals_file(path: str | Path) -> np.ndarray:
 def read_indices(path: str | Path, n_points: int) -> np.ndarray:
     """A PCPNet .pidx file: (M,) int64 0-based indices, one per line, each checked to lie in [0, n_points)."""
     path = Path(path)
-    if not path.is_file():
-        raise CloudFileError(f"{path}: no such file")
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CloudFileError(f"{path}: cannot read: {_one_line(exc)}") from exc
-    tokens = text.split()
+    tokens = _read_text(path).split()
     bad = next((t for t in tokens if not re.fullmatch(r"[+-]?\d+", t)), None)
     if bad is not None:
         raise CloudFileError(f"{path}: not an integer index: {bad[:40]!r}")
@@ -106,6 +101,33 @@ def read_indices(path: str | Path, n_points: int) -> np.ndarray:
             "(indices are 0-based)"
         )
     return idx
+
+
+def _require_file(path: Path) -> None:
+    if path.is_dir():
+        raise CloudFileError(f"{path}: is a directory, not a file")
+    if not path.is_file():
+        raise CloudFileError(f"{path}: no such file")
+
+
+def _read_text(path: Path) -> str:
+    _require_file(path)
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise CloudFileError(f"{path}: not a text file (it holds bytes that are not UTF-8)") from None
+    except OSError as exc:
+        raise CloudFileError(f"{path}: cannot read: {_one_line(exc)}") from exc
+
+
+def _cut_short(path: Path, declared: int, held: int, what: str = "points") -> CloudFileError:
+    return CloudFileError(f"{path}: header declares {declared} {what} but the file holds only {held} (cut short?)")
+
+
+def _float64(values: np.ndarray) -> np.ndarray:
+    """`values` as float64; a signalling NaN in float32 data becomes a quiet NaN without a RuntimeWarning."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray(values, dtype=np.float64)
 
 
 def _checked(path: Path, cloud: CloudData) -> CloudData:
@@ -127,26 +149,38 @@ def _read_xyz(path: Path) -> CloudData:
 
 def _load_text_columns(path: Path, n: int) -> np.ndarray:
     """The first `n` whitespace-separated columns of a text file ('#' comments, extra columns ignored)."""
-    if not path.is_file():
-        raise CloudFileError(f"{path}: no such file")
+    rows = [line for line in _read_text(path).splitlines() if line.split("#", 1)[0].strip()]
+    if not rows:
+        raise CloudFileError(f"{path}: no data (the file is empty or holds only comments)")
     try:
-        data = np.loadtxt(path, dtype=np.float64, usecols=range(n), ndmin=2, comments="#")
+        data = np.loadtxt(rows, dtype=np.float64, usecols=range(n), ndmin=2, comments="#")
     except (ValueError, IndexError) as exc:
         raise CloudFileError(f"{path}: expected {n} numeric columns per line: {_one_line(exc)}") from exc
     return data
 
 
 def _read_npy(path: Path) -> CloudData:
-    try:
-        array = np.load(path, allow_pickle=False)
-    except ValueError as exc:
-        raise CloudFileError(f"{path}: not a plain numeric .npy array (pickled objects are refused)") from exc
-    if not isinstance(array, np.ndarray) or array.dtype.kind not in "fiu":
-        raise CloudFileError(f"{path}: expected a numeric array, got dtype {getattr(array, 'dtype', type(array))}")
-    if array.ndim != 2 or array.shape[1] < 3:
-        raise CloudFileError(f"{path}: expected an (N, 3) or (N, >=3) array, got shape {array.shape}")
-    normals = array[:, 3:6].astype(np.float64) if array.shape[1] >= 6 else None
-    return CloudData(array[:, :3].astype(np.float64), normals)
+    """Header first (dtype, shape, size against the file's length), so a cut file and a pickle get their own line."""
+    with path.open("rb") as f:
+        try:
+            fmt = np.lib.format
+            version = fmt.read_magic(f)
+            shape, _, dtype = (fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0)(f)
+        except ValueError:
+            raise CloudFileError(f"{path}: not a .npy file (no valid NumPy header; empty or cut short?)") from None
+        held = path.stat().st_size - f.tell()
+    if dtype.hasobject:
+        raise CloudFileError(f"{path}: holds Python objects, not numbers (pickled .npy files are refused)")
+    if dtype.kind not in "fiu" or dtype.fields is not None:
+        raise CloudFileError(f"{path}: expected a numeric array, got dtype {dtype}")
+    if len(shape) != 2 or shape[1] < 3:
+        raise CloudFileError(f"{path}: expected an (N, 3) or (N, >=3) array, got shape {shape}")
+    row_bytes = dtype.itemsize * shape[1]
+    if held < row_bytes * shape[0]:
+        raise _cut_short(path, shape[0], held // row_bytes)
+    array = np.load(path, allow_pickle=False)
+    normals = _float64(array[:, 3:6]) if array.shape[1] >= 6 else None
+    return CloudData(_float64(array[:, :3]), normals)
 
 
 def _pypcd4():
@@ -158,21 +192,159 @@ def _pypcd4():
     return pypcd4
 
 
-def _read_pcd(path: Path) -> CloudData:
-    PointCloud = _pypcd4().PointCloud
+# ---------------------------------------------------------------- PCD
 
-    cloud = PointCloud.from_path(path)
-    fields = cloud.fields
-    missing = [f for f in ("x", "y", "z") if f not in fields]
+_PCD_TYPES = {
+    ("F", 4): "f4",
+    ("F", 8): "f8",
+    **{("I", n): f"i{n}" for n in (1, 2, 4, 8)},
+    **{("U", n): f"u{n}" for n in (1, 2, 4, 8)},
+}
+_PCD_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
+_PCD_ENCODINGS = ("ascii", "binary", "binary_compressed")
+
+
+@dataclass
+class _PcdHeader:
+    fields: list[str]
+    dtype: np.dtype  # one numpy field per PCD field, named f0, f1, ... (PCD names may repeat, e.g. '_' padding)
+    width: int
+    height: int
+    points: int
+    encoding: str
+
+
+def _read_pcd(path: Path) -> CloudData:
+    with path.open("rb") as f:
+        header = _pcd_header(path, f)
+        decode = {"ascii": _pcd_ascii, "binary": _pcd_binary, "binary_compressed": _pcd_compressed}[header.encoding]
+        table = decode(path, f, header) if header.points else np.zeros(0, header.dtype)
+    fields = header.fields
+    missing = [c for c in "xyz" if c not in fields]
     if missing:
         raise CloudFileError(f"{path}: PCD has no field(s) {', '.join(missing)} (fields: {' '.join(fields)})")
-    points = cloud.numpy(("x", "y", "z")).astype(np.float64)
-    normals = None
-    if all(f in fields for f in _NORMAL_NAMES[1]):
-        normals = cloud.numpy(_NORMAL_NAMES[1]).astype(np.float64)
-    meta = cloud.metadata
-    height, width = (meta.height, meta.width) if meta.height * meta.width == len(points) else (1, len(points))
-    return CloudData(points, normals, height, width)
+
+    def columns(names: tuple[str, ...]) -> np.ndarray:
+        return np.stack([_float64(table[f"f{fields.index(n)}"][:, 0]) for n in names], axis=1)
+
+    normals = columns(_NORMAL_NAMES[1]) if set(_NORMAL_NAMES[1]) <= set(fields) else None
+    return CloudData(columns(("x", "y", "z")), normals, header.height, header.width)
+
+
+def _pcd_header(path: Path, f) -> _PcdHeader:
+    """Read the header up to and including its DATA line; every inconsistency is one line naming the problem."""
+    values: dict[str, list[str]] = {}
+    for _ in range(100):
+        raw = f.readline(4096)
+        if not raw:
+            break
+        try:
+            words = raw.decode("ascii").split()
+        except UnicodeDecodeError:
+            raise CloudFileError(f"{path}: not a PCD file (the header is not text)") from None
+        if not words or words[0].startswith("#"):
+            continue
+        key = words[0].upper()
+        if key not in _PCD_KEYS:
+            raise CloudFileError(f"{path}: not a PCD file (unexpected header line {raw.strip()[:40]!r})")
+        values[key] = words[1:]
+        if key == "DATA":
+            return _pcd_checked_header(path, values)
+    if not values:
+        raise CloudFileError(f"{path}: empty file, not a PCD")
+    raise CloudFileError(f"{path}: PCD header has no DATA line (cut short?)")
+
+
+def _pcd_checked_header(path: Path, values: dict[str, list[str]]) -> _PcdHeader:
+    missing = [key for key in ("FIELDS", "SIZE", "TYPE", "WIDTH") if not values.get(key)]
+    if missing:
+        raise CloudFileError(f"{path}: PCD header has no {', '.join(missing)} line")
+    fields = values["FIELDS"]
+
+    def numbers(key: str, default: list[str], least: int) -> list[int]:
+        words = values.get(key) or default
+        if not all(re.fullmatch(r"\d+", w) for w in words) or min(int(w) for w in words) < least:
+            raise CloudFileError(f"{path}: PCD {key} must be integers >= {least}, got {' '.join(words)[:60]!r}")
+        if key in ("SIZE", "COUNT") and len(words) != len(fields):
+            raise CloudFileError(f"{path}: PCD {key} has {len(words)} entries for {len(fields)} FIELDS")
+        return [int(w) for w in words]
+
+    sizes, counts = numbers("SIZE", [], 1), numbers("COUNT", ["1"] * len(fields), 1)
+    (width,), (height,) = numbers("WIDTH", [], 0)[:1], numbers("HEIGHT", ["1"], 0)[:1]
+    (points,) = numbers("POINTS", [str(width * height)], 0)[:1]
+    types = [t.upper() for t in values["TYPE"]]
+    if len(types) != len(fields):
+        raise CloudFileError(f"{path}: PCD TYPE has {len(types)} entries for {len(fields)} FIELDS")
+    bad = next(((t, n) for t, n in zip(types, sizes, strict=True) if (t, n) not in _PCD_TYPES), None)
+    if bad is not None:
+        raise CloudFileError(f"{path}: PCD field type {bad[0]} with size {bad[1]} is not supported")
+    if points != width * height:
+        raise CloudFileError(f"{path}: PCD header says POINTS {points} but WIDTH x HEIGHT = {width} x {height}")
+    encoding = values["DATA"][0].lower() if values["DATA"] else ""
+    if encoding not in _PCD_ENCODINGS:
+        raise CloudFileError(f"{path}: unsupported PCD DATA {encoding!r} (use {', '.join(_PCD_ENCODINGS)})")
+    layout = zip(types, sizes, counts, strict=True)
+    dtype = np.dtype([(f"f{i}", "<" + _PCD_TYPES[(t, n)], (c,)) for i, (t, n, c) in enumerate(layout)])
+    return _PcdHeader(fields, dtype, width, height, points, encoding)
+
+
+def _pcd_ascii(path: Path, f, header: _PcdHeader) -> np.ndarray:
+    """One line per point with sum(COUNT) numbers; read as float64 (every type is a number in text)."""
+    rows = [line for line in f.read().decode("ascii", errors="replace").splitlines() if line.strip()]
+    if len(rows) < header.points:
+        raise _cut_short(path, header.points, len(rows))
+    if len(rows) > header.points:
+        raise CloudFileError(f"{path}: header declares {header.points} points but the file holds {len(rows)} rows")
+    floats = np.dtype([(name, "f8", header.dtype[name].shape) for name in header.dtype.names])
+    width = floats.itemsize // 8
+    bad = next((i for i, row in enumerate(rows) if len(row.split()) != width), None)
+    if bad is not None:
+        n = len(rows[bad].split())
+        raise CloudFileError(f"{path}: PCD data line {bad + 1} has {n} values, the header declares {width} per point")
+    table = np.loadtxt(rows, dtype=np.float64, ndmin=2)
+    return np.ascontiguousarray(table).view(floats).reshape(header.points)
+
+
+def _pcd_binary(path: Path, f, header: _PcdHeader) -> np.ndarray:
+    """Points one after the other, fields packed (PCL's binary layout); trailing bytes are ignored, as PCL does."""
+    need = header.points * header.dtype.itemsize
+    raw = f.read(need)
+    if len(raw) < need:
+        raise _cut_short(path, header.points, len(raw) // header.dtype.itemsize)
+    return np.frombuffer(raw, header.dtype, count=header.points)
+
+
+def _pcd_compressed(path: Path, f, header: _PcdHeader) -> np.ndarray:
+    """Two uint32 sizes, then one lzf block holding each field for all points in turn (PCL's binary_compressed)."""
+    sizes = f.read(8)
+    if len(sizes) < 8:
+        raise CloudFileError(f"{path}: binary_compressed PCD ends before its block sizes (cut short?)")
+    packed, unpacked = struct.unpack("<II", sizes)
+    need = header.points * header.dtype.itemsize
+    if unpacked != need:
+        raise CloudFileError(
+            f"{path}: header declares {header.points} points ({need} bytes) but the compressed block unpacks to "
+            f"{unpacked} bytes"
+        )
+    block = f.read(packed)
+    if len(block) < packed:
+        raise CloudFileError(f"{path}: compressed block holds {len(block)} of its {packed} bytes (cut short?)")
+    try:
+        import lzf
+    except ImportError:
+        raise CloudFileError("binary_compressed .pcd files need the lzf module (pip install pypcd4)") from None
+    try:
+        raw = lzf.decompress(block, unpacked)
+    except ValueError:
+        raw = None
+    if raw is None or len(raw) != unpacked:
+        raise CloudFileError(f"{path}: compressed block is corrupt (lzf cannot unpack it to {unpacked} bytes)")
+    out, offset = np.zeros(header.points, header.dtype), 0
+    for name in header.dtype.names:
+        field = header.dtype[name]
+        out[name] = np.frombuffer(raw, field.base, header.points * field.shape[0], offset).reshape(-1, *field.shape)
+        offset += header.points * field.itemsize
+    return out
 
 
 # ---------------------------------------------------------------- PLY
@@ -186,10 +358,10 @@ def _read_ply(path: Path) -> CloudData:
     missing = [c for c in "xyz" if c not in names]
     if missing:
         raise CloudFileError(f"{path}: PLY vertex has no property {', '.join(missing)}")
-    points = np.stack([vertex[c].astype(np.float64) for c in "xyz"], axis=1)
+    points = np.stack([_float64(vertex[c]) for c in "xyz"], axis=1)
     normals = next(
         (
-            np.stack([vertex[c].astype(np.float64) for c in trio], axis=1)
+            np.stack([_float64(vertex[c]) for c in trio], axis=1)
             for trio in _NORMAL_NAMES
             if set(trio) <= set(names)
         ),
@@ -219,6 +391,8 @@ def _ply_header(path: Path, f) -> tuple[str, list[tuple[str, int, list[tuple[str
                 raise CloudFileError(f"{path}: unsupported PLY format {' '.join(words[1:2])!r}")
             fmt = words[1]
         elif words[0] == "element" and len(words) == 3:
+            if not words[2].isdigit():
+                raise CloudFileError(f"{path}: PLY element {words[1]!r} has count {words[2][:20]!r}, not an integer")
             elements.append((words[1], int(words[2]), []))
         elif words[0] == "property" and elements:
             elements[-1][2].append(_ply_property(path, words))
@@ -240,23 +414,35 @@ def _ply_vertex(path: Path, f, fmt: str, elements: list) -> np.ndarray:
     for name, count, props in elements:
         if any(t is None for _, t in props):
             raise CloudFileError(f"{path}: PLY element {name!r} has list properties (only vertex data is read)")
-        dtype = np.dtype([(p, (_PLY_FORMATS[fmt] or "<") + t) for p, t in props])
         if fmt == "ascii":
-            rows = [f.readline().decode("ascii", errors="replace") for _ in range(count)]
-            if len(rows) != count or (count and not rows[-1]):
-                raise CloudFileError(f"{path}: PLY ends inside element {name!r}")
-            table = np.loadtxt(rows, dtype=np.float64, ndmin=2, usecols=range(len(props))) if count else None
-            data = np.zeros(count, dtype=dtype)
-            for j, (p, _) in enumerate(props):
-                data[p] = table[:, j] if count else 0
+            data = _ply_ascii_rows(path, f, name, count, [p for p, _ in props])
         else:
+            dtype = np.dtype([(p, _PLY_FORMATS[fmt] + t) for p, t in props])
             raw = f.read(dtype.itemsize * count)
-            if len(raw) != dtype.itemsize * count:
-                raise CloudFileError(f"{path}: PLY is truncated inside element {name!r}")
+            if len(raw) < dtype.itemsize * count:
+                raise _cut_short(path, count, len(raw) // dtype.itemsize, f"{name!r} rows")
             data = np.frombuffer(raw, dtype=dtype, count=count)
         if name == "vertex":
             return data
     raise CloudFileError(f"{path}: PLY has no 'vertex' element")
+
+
+def _ply_ascii_rows(path: Path, f, name: str, count: int, props: list[str]) -> np.ndarray:
+    """`count` text rows of exactly len(props) numbers each, as float64 columns (every PLY type is a number in text)."""
+    rows = []
+    for i in range(count):
+        line = f.readline()
+        if not line:
+            raise _cut_short(path, count, i, f"{name!r} rows")
+        words = line.split()
+        if len(words) != len(props):
+            raise CloudFileError(
+                f"{path}: PLY {name!r} row {i + 1} has {len(words)} values, the header declares {len(props)} "
+                f"(and {count} rows)"
+            )
+        rows.append(words)
+    table = np.array(rows, dtype=np.float64).reshape(count, len(props))
+    return np.ascontiguousarray(table).view(np.dtype([(p, "f8") for p in props])).reshape(count)
 
 
 # ---------------------------------------------------------------- writing
@@ -292,16 +478,6 @@ def write_normals(
         writer(sys.stdout if path_str == "-" else path, points, normals, curvature, organized)
     except OSError as exc:
         raise CloudFileError(f"{path}: cannot write: {_one_line(exc)}") from exc
-
-
-def write_points(path: str | Path, points: np.ndarray, normals: np.ndarray | None = None) -> None:
-    """Write points (and optional normals) as .xyz text or, via `write_normals`, .npy/.ply/.pcd (tests, bench)."""
-    path = Path(path)
-    if path.suffix.lower() == ".xyz":
-        np.savetxt(path, np.asarray(points, dtype=np.float64), fmt="%.6f")
-        return
-    shape = np.shape(points)
-    write_normals(path, points, np.full(shape, np.nan) if normals is None else normals)
 
 
 def _write_normals_text(path, points: np.ndarray, normals: np.ndarray, curvature: np.ndarray, organized=None) -> None:
