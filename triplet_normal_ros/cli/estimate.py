@@ -36,10 +36,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--k",
         type=int,
         metavar="K",
-        help=f"learned: points per patch (default: the checkpoint's); pca: neighbour cap (default {PCA_DEFAULT_K})",
+        help=(
+            f"learned and hybrid: points per patch (default: the checkpoint's); pca: neighbour cap "
+            f"(default {PCA_DEFAULT_K})"
+        ),
     )
     p.add_argument("--checkpoint", metavar="C", help="safetensors checkpoint (default: the one shipped in the package)")
-    p.add_argument("--method", choices=METHODS, default="learned", help="default: learned")
+    p.add_argument(
+        "--method",
+        choices=METHODS,
+        default="learned",
+        help="learned (default), pca, or hybrid (PCA, with the network where the surface is not flat)",
+    )
     p.add_argument("--device", default="auto", metavar="D", help="auto, cpu, cuda or cuda:N (default auto)")
     p.add_argument(
         "--viewpoint", type=float, nargs=3, metavar=("X", "Y", "Z"), help="orient: flip normals to face this point"
