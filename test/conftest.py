@@ -26,32 +26,33 @@ COLCON = Path(sys.executable).with_name("colcon")
 TEST_CACHE = REPO / ".cache"
 
 
+#: Caches the tests (and the processes they start) would otherwise fill under $HOME, redirected under TEST_CACHE.
+#: The generated-data cache persists there between runs, so only the first run pays for generating the shapes.
+PRIVATE_CACHES = {
+    "TRIPLET_NORMAL_CACHE": "test-data",  # training.dataset.default_cache_dir
+    "MPLCONFIGDIR": "test-matplotlib",
+    "TORCH_HOME": "test-torch",
+    "XDG_CACHE_HOME": "test-xdg",
+    "ROS_HOME": "test-ros",  # rcl's file logs (ROS_HOME/log)
+}
+_ENV_PATCH = pytest.MonkeyPatch()
+
+
 def pytest_configure(config: pytest.Config) -> None:
+    """Register ``slow``; redirect the caches. This runs before collection, which a session fixture would not:
+    matplotlib reads MPLCONFIGDIR once, at import, and test modules import it at collection time."""
     config.addinivalue_line(
         "markers",
         "slow: colcon builds, node processes, training runs, accuracy checks of the shipped checkpoint, eval --quick "
-        "and subprocess CLI runs (make test-fast deselects them; make test runs everything)",
+        "and subprocesses (make test-fast deselects them; make test runs everything)",
     )
+    for name, folder in PRIVATE_CACHES.items():
+        (TEST_CACHE / folder).mkdir(parents=True, exist_ok=True)
+        _ENV_PATCH.setenv(name, str(TEST_CACHE / folder))
 
 
-@pytest.fixture(scope="session", autouse=True)
-def private_caches() -> Iterator[dict[str, str]]:
-    """Point every cache the tests (and the processes they start) would fill under $HOME at TEST_CACHE instead.
-
-    The generated-data cache persists there between runs, so only the first run pays for generating the shapes.
-    """
-    paths = {
-        "TRIPLET_NORMAL_CACHE": TEST_CACHE / "test-data",  # training.dataset.default_cache_dir
-        "MPLCONFIGDIR": TEST_CACHE / "test-matplotlib",
-        "TORCH_HOME": TEST_CACHE / "test-torch",
-        "XDG_CACHE_HOME": TEST_CACHE / "test-xdg",
-        "ROS_HOME": TEST_CACHE / "test-ros",  # rcl's file logs (ROS_HOME/log)
-    }
-    with pytest.MonkeyPatch.context() as patch:
-        for name, path in paths.items():
-            path.mkdir(parents=True, exist_ok=True)
-            patch.setenv(name, str(path))
-        yield {name: str(path) for name, path in paths.items()}
+def pytest_unconfigure(config: pytest.Config) -> None:
+    _ENV_PATCH.undo()
 
 
 @pytest.fixture(scope="session")

@@ -264,16 +264,21 @@ def test_all_nan_cloud_gets_nan_normals(client: ProbeClient, pca_node: NodeProce
 # -- shutdown -------------------------------------------------------------------------------------------------------
 
 
-def test_sigint_during_an_estimate_exits_cleanly(client: ProbeClient, pca_node: NodeProcess, frame: Frame) -> None:
-    """Last in this module: it ends the shared node. A learned full frame takes minutes, so it is surely in flight."""
-    assert client.set_parameters({"method": "learned"})[0]
-    client.send(frame.to_cloud(client.header()))
-    client.spin_for(1.5)  # reliable delivery of ~5 MB, then the worker is inside estimate()
-    code, seconds = pca_node.stop(signal.SIGINT)
-    assert code == 0, pca_node.log[-3000:]
+def test_sigint_during_an_estimate_exits_cleanly(start_node, frame: Frame) -> None:
+    """A node of its own (the module's shared one must outlive every order of the tests). A learned full frame takes
+    minutes, so it is surely in flight when SIGINT arrives."""
+    remaps = {"input": "/tn_int/in", "output": "/tn_int/out"}
+    node = start_node({"method": "learned", "device": "cpu"}, remaps, (remaps["input"],))
+    assert node.wait_for_log("ready:", 60), node.log
+    with ProbeClient("/tn_int/in", "/tn_int/out") as c:
+        assert c.wait_for_node(30)
+        c.send(frame.to_cloud(c.header()))
+        c.spin_for(1.5)  # reliable delivery of ~5 MB, then the worker is inside estimate()
+    code, seconds = node.stop(signal.SIGINT)
+    assert code == 0, node.log[-3000:]
     assert seconds < SHUTDOWN_S, f"took {seconds:.2f} s"
-    assert "Traceback" not in pca_node.log
-    assert "shut down" in pca_node.log and "still busy" not in pca_node.log, "the estimate was not cancelled"
+    assert "Traceback" not in node.log
+    assert "shut down" in node.log and "still busy" not in node.log, "the estimate was not cancelled"
 
 
 # -- separate processes ---------------------------------------------------------------------------------------------
