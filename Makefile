@@ -21,19 +21,27 @@ PINS := \
 
 venv: $(STAMP)
 
+# One line per step; pip's own output only when a step fails (the editable install's is kept in $(VENV)/install.log).
 $(STAMP): Makefile setup.py package.xml
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q $(PINS)
-	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
-	touch $(STAMP)
+	@echo "make venv: [1/3] virtual environment in $(VENV)/"
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	@echo "make venv: [2/3] installing pinned dependencies (first run takes a few minutes)"
+	@$(PY) -m pip install -q --upgrade pip
+	@$(PY) -m pip install -q $(PINS)
+	@echo "make venv: [3/3] installing triplet_normal_ros itself (editable)"
+	@$(PY) -m pip install -q --no-deps --no-build-isolation -e . >$(VENV)/install.log 2>&1 \
+		|| { cat $(VENV)/install.log; exit 1; }
+	@touch $(STAMP)
 
 # `make demo`: colcon-build into out/ws, run the installed node, replay the shipped Kinect frames, draw out/*.png.
 WS := out/ws
 demo: venv
-	$(VENV)/bin/colcon --log-base $(WS)/log build --base-paths . \
-		--build-base $(WS)/build --install-base $(WS)/install
-	$(PY) -m triplet_normal_ros.ros.demo --prefix $(WS)/install/triplet_normal_ros --out out
+	@echo "make demo: colcon build into $(WS)/ (its log: $(WS)/log/latest_build)"
+	@$(VENV)/bin/colcon --log-base $(WS)/log build --base-paths . \
+		--build-base $(WS)/build --install-base $(WS)/install --event-handlers console_direct- console_start_end- \
+		|| { echo "make demo: colcon build failed; see $(WS)/log/latest_build" >&2; exit 1; }
+	@echo "make demo: running the installed node on the shipped frames"
+	@$(PY) -m triplet_normal_ros.ros.demo --prefix $(WS)/install/triplet_normal_ros --out out
 
 lint: venv
 	$(VENV)/bin/ruff check --config .ci/ruff.toml triplet_normal_ros test
