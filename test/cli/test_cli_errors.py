@@ -20,9 +20,6 @@ from triplet_normal_ros.core.conventions import PCA_DEFAULT_K
 from triplet_normal_ros.io.cloud_files import write_normals
 
 SCRIPT = Path(sys.executable).with_name("triplet-normal")
-#: Known gaps in cli/train.py + training/recipes.py (not this module's files): strict, so a fix turns them into XPASS
-#: failures and the marker must then be removed.
-TRAIN_GAP = pytest.mark.xfail(strict=True, reason="train does not yet refuse this value with status 2 before working")
 #: If a bad train value were not rejected, this budget keeps the run it would start small (seconds, not hours).
 TINY_TRAIN = [
     "--shapes", "sphere", "--val-shapes", "blob_d", "--encoder-epochs", "0", "--regressor-epochs", "0",
@@ -100,10 +97,10 @@ def test_estimate_bad_values(tmp_path: Path, capsys, ok_xyz: Path, args: list[st
         (["train", "--device", "gpu", *TINY_TRAIN], "device must be"),
         (["train", "--relative-floor-deg", "0", *TINY_TRAIN], "must be a finite number > 0"),
         (["train", "--relative-floor-deg", "nan", *TINY_TRAIN], "must be a finite number > 0"),
-        pytest.param(["train", "--k", "1", *TINY_TRAIN], "--k must be >= 3", marks=TRAIN_GAP),
-        pytest.param(["train", "--batch-size", "0", *TINY_TRAIN], "--batch-size must be >= 1", marks=TRAIN_GAP),
-        pytest.param(["train", "--lr", "-1", *TINY_TRAIN], "--lr must be a finite number > 0", marks=TRAIN_GAP),
-        pytest.param(["train", "--lr", "nan", *TINY_TRAIN], "--lr must be a finite number > 0", marks=TRAIN_GAP),
+        pytest.param(["train", "--k", "1", *TINY_TRAIN], "--k must be >= 3"),
+        pytest.param(["train", "--batch-size", "0", *TINY_TRAIN], "--batch-size must be >= 1"),
+        pytest.param(["train", "--lr", "-1", *TINY_TRAIN], "argument --lr: must be a finite number > 0"),
+        pytest.param(["train", "--lr", "nan", *TINY_TRAIN], "argument --lr: must be a finite number > 0"),
         (["frobnicate"], "invalid choice"),
         ([], "the following arguments are required"),
     ],

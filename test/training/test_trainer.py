@@ -14,7 +14,7 @@ from triplet_normal_ros.cli.main import main
 from triplet_normal_ros.core.checkpoint import read_metadata
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.neighbours import NeighbourIndex
-from triplet_normal_ros.errors import TrainingError
+from triplet_normal_ros.errors import TrainingError, UsageError
 from triplet_normal_ros.evaluation.ablation import _variants, reference_estimator
 from triplet_normal_ros.training.batches import CloudSampler
 from triplet_normal_ros.training.dataset import build_dataset
@@ -181,13 +181,13 @@ def test_a_relative_floor_that_is_not_positive_is_refused_by_the_cli(floor, tmp_
     "flag", ["--finetune-patches-per-shape 0", "--regressor-patches-per-shape -3", "--k 0", "--regressor-epochs -1"]
 )
 def test_a_size_or_epoch_count_that_cannot_work_is_refused(flag, tmp_path):
-    with pytest.raises(TrainingError, match=f"{flag.split()[0]} must be >= "):
+    with pytest.raises(UsageError, match=f"{flag.split()[0]} must be >= "):
         train.recipe_from_args(_args(flag, tmp_path))
 
 
 def test_a_relative_floor_without_the_relative_loss_is_refused(tmp_path):
     args = _args("--loss angle --relative-floor-deg 5", tmp_path)
-    with pytest.raises(TrainingError, match="only applies to --loss relative"):
+    with pytest.raises(UsageError, match="only applies to --loss relative"):
         train.recipe_from_args(args)
 
 

@@ -5,7 +5,7 @@ import dataclasses
 import math
 from pathlib import Path
 
-from ..errors import TrainingError
+from ..errors import TrainingError, UsageError
 from . import args as checks
 
 DESCRIPTION = """Train the encoder (phase a, triplet loss) and the regressor (phase b) from the generated shapes,
@@ -54,8 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--finetune-freeze-bn", action=argparse.BooleanOptionalAction, help="phase (c) keeps BatchNorm statistics"
     )
-    parser.add_argument("--lr", type=float)
-    parser.add_argument("--finetune-lr", type=float)
+    parser.add_argument("--lr", type=_positive_float)
+    parser.add_argument("--finetune-lr", type=_positive_float)
     parser.add_argument("--encoder-widths", type=int, nargs="+", dest="encoder")
     parser.add_argument("--regressor-widths", type=int, nargs="+", dest="regressor")
 
@@ -78,8 +78,11 @@ def recipe_from_args(args: argparse.Namespace):
         overrides["triplet"] = False
     recipe = dataclasses.replace(RECIPES[args.recipe], **overrides)
     if args.relative_floor_deg is not None and recipe.loss != "relative":
-        raise TrainingError(f"--relative-floor-deg only applies to --loss relative (this run uses {recipe.loss!r})")
-    check_counts(recipe)
+        raise UsageError(f"--relative-floor-deg only applies to --loss relative (this run uses {recipe.loss!r})")
+    try:
+        check_counts(recipe)
+    except TrainingError as error:  # a bad option value: a usage error (status 2), like argparse's own
+        raise UsageError(str(error)) from None
     return recipe
 
 

@@ -6,8 +6,8 @@ so changing a value here can never silently mismatch a shipped model.
 
 import numpy as np
 
-#: The methods `NormalEstimator` offers.
-METHODS = ("learned", "pca")
+#: The methods `NormalEstimator` offers: the network everywhere, PCA, or PCA with the network where it is not flat.
+METHODS = ("learned", "pca", "hybrid")
 #: The learned method draws its k points from the nearest POOL_FACTOR * k points inside the ball; PCA frames and
 #: curvature come from that whole pool.
 POOL_FACTOR = 4
@@ -15,6 +15,8 @@ POOL_FACTOR = 4
 RADIUS_FRACTION = 0.05
 #: Fewer neighbours than this inside the ball gives a NaN row (PCL's convention: a plane needs three points).
 MIN_NEIGHBOURS = 3
+#: Hybrid sends a point to the network when its PCA surface variation λ0/Σλ exceeds this (chosen in docs/RESULTS.md).
+HYBRID_GATE = 0.01
 #: PCA's neighbour cap when no k is given: large enough to be the whole ball for typical depth-camera radii.
 PCA_DEFAULT_K = 500
 

@@ -1,13 +1,17 @@
 """NormalEstimator: the one entry point that the node, the CLI, evaluation and the tests call.
 
-`estimate` builds a KD-tree once per cloud, then walks the query points in chunks: ball neighbourhoods (cKDTree, CPU),
-then PCA or patches + network (torch, on the chosen device). Memory stays bounded by the chunk size.
+`estimate` builds a neighbour search once per cloud (the pixel grid of an organized cloud, on the device, else a
+KD-tree), then walks the query points in chunks: ball neighbourhoods, then PCA, patches + network, or both (hybrid:
+the network only where PCA's neighbourhood is not flat). Memory stays bounded by the chunk size.
 """
+
+from __future__ import annotations
 
 import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -15,19 +19,39 @@ import torch
 
 from ..errors import EstimationCancelled, EstimatorError
 from .checkpoint import load_checkpoint
-from .conventions import METHODS, MIN_NEIGHBOURS, PCA_DEFAULT_K, POOL_FACTOR
+from .conventions import HYBRID_GATE, METHODS, MIN_NEIGHBOURS, PCA_DEFAULT_K, POOL_FACTOR
 from .device import resolve_device
 from .frames import masked_covariance, principal_frames, surface_variation
 from .neighbours import NeighbourIndex
+from .organized import GridIndex
 from .patches import build_patches, to_world
 
+#: Neighbour searches: 'kdtree', 'grid' (organized clouds only; falls back to the KD-tree), 'auto' (grid on CUDA).
+NEIGHBOUR_SEARCHES = ("auto", "kdtree", "grid")
 #: Query points per neighbour-search chunk; bounds the (chunk, pool) index block and the cancel latency.
 CHUNK = 4096
 PCA_CHUNK = 16384
 
 
+@dataclass
+class RunInfo:
+    """What the last `estimate` call did: which neighbour search, and how many points the network saw."""
+
+    search: str = "none"  # "grid" (organized pixel grid) | "kdtree" | "none"
+    estimated: int = 0  # finite query points
+    network: int = 0  # of those, how many went through the network (all for learned, the gated ones for hybrid)
+
+    @property
+    def network_fraction(self) -> float:
+        return self.network / self.estimated if self.estimated else 0.0
+
+
 class NormalEstimator:
-    """Unit normals and PCL surface variation for an (N, 3) cloud, by the learned network or by PCA."""
+    """Unit normals and PCL surface variation for an (N, 3) cloud, by the learned network, PCA, or both (hybrid).
+
+    `hybrid` runs PCA on the learned method's pool everywhere and the network only where PCA's surface variation
+    exceeds `gate`: near edges and corners, where PCA blurs and the network pays for itself (docs/MODEL.md).
+    """
 
     def __init__(
         self,
@@ -38,6 +62,8 @@ class NormalEstimator:
         device: str = "auto",
         batch_size: int = 256,
         seed: int = 0,
+        gate: float = HYBRID_GATE,
+        neighbours: str = "auto",
     ) -> None:
         if method not in METHODS:
             raise EstimatorError(f"method must be one of {METHODS}, got {method!r}")
@@ -47,13 +73,18 @@ class NormalEstimator:
             raise EstimatorError(str(error)) from None
         self.method = method
         self.model, self.metadata = (None, {})
-        if method == "learned":
+        if method != "pca":
             self.model, self.metadata = load_checkpoint(checkpoint, self.device)
         self.default_k = int(self.metadata.get("k", PCA_DEFAULT_K))
         self.radius = radius
         self.k = self.default_k if k is None else k
         self.batch_size = batch_size
         self.seed = seed
+        self.gate = gate
+        if neighbours not in NEIGHBOUR_SEARCHES:
+            raise EstimatorError(f"neighbours must be one of {NEIGHBOUR_SEARCHES}, got {neighbours!r}")
+        self.neighbours = neighbours
+        self.last_run = RunInfo()
 
     @property
     def radius(self) -> float:
@@ -61,8 +92,7 @@ class NormalEstimator:
 
     @radius.setter
     def radius(self, value: float) -> None:
-        real = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
-        if not (real and np.isfinite(value) and value > 0):
+        if not (_is_real(value) and np.isfinite(value) and value > 0):
             raise EstimatorError(f"radius must be a finite number > 0, got {value!r}")
         self._radius = float(value)
 
@@ -75,6 +105,16 @@ class NormalEstimator:
         if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < MIN_NEIGHBOURS:
             raise EstimatorError(f"k must be an integer >= {MIN_NEIGHBOURS}, got {value!r}")
         self._k = int(value)
+
+    @property
+    def gate(self) -> float:
+        return self._gate
+
+    @gate.setter
+    def gate(self, value: float) -> None:
+        if not (_is_real(value) and 0 <= value <= 1 / 3):
+            raise EstimatorError(f"gate must be a surface variation in [0, 1/3], got {value!r}")
+        self._gate = float(value)
 
     @property
     def batch_size(self) -> int:
@@ -93,43 +133,56 @@ class NormalEstimator:
         cancel: threading.Event | None = None,
         timings: dict[str, float] | None = None,
         progress: Callable[[int], None] | None = None,
+        shape: tuple[int, int] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Normals (M, 3) and curvature (M,), float32, at `query` indices (default: every point).
 
         Rows are NaN where the query point is non-finite or has fewer than 3 neighbours within the radius.
         Normal signs are arbitrary; see `orientation.orient_towards_viewpoint`. `progress(n)` is called with the
         number of query rows finished after each chunk (non-finite ones count at once), for a progress bar.
+        `shape` = (height, width) of an organized cloud lets neighbours come from its pixel grid (see `organized`).
         """
         points = _as_cloud(points)
         query = _as_query(query, len(points))
         normals = np.full((len(query), 3), np.nan, dtype=np.float32)
         curvature = np.full(len(query), np.nan, dtype=np.float32)
         timings = {} if timings is None else timings
+        cloud = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64)).to(self.device)
         with _timed(timings, "neighbours"):
-            index = NeighbourIndex(points)
+            search = self._search(points, cloud, shape)
         # Non-finite query points keep their NaN rows without costing a search (a third of a Kinect frame).
-        todo = np.flatnonzero(index.finite[query])
+        todo = np.flatnonzero(search.finite[query])
+        self.last_run = RunInfo(search.name, len(todo))
         if progress is not None:
             progress(len(query) - len(todo))
-        cloud = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64)).to(self.device)
         chunk = PCA_CHUNK if self.method == "pca" else CHUNK
+        run = {"pca": self._pca_chunk, "learned": self._learned_chunk, "hybrid": self._hybrid_chunk}[self.method]
         for lo in range(0, len(todo), chunk):
             if cancel is not None and cancel.is_set():
                 raise EstimationCancelled("estimation cancelled")
             out = todo[lo : lo + chunk]
-            rows = query[out]
+            rows = torch.from_numpy(query[out]).to(self.device)
             with _timed(timings, "neighbours"):
-                pool, _ = index.ball(points[rows], self.radius, self._pool_size())
-            rows_t = torch.from_numpy(rows).to(self.device)
-            run = self._pca_chunk if self.method == "pca" else self._learned_chunk
-            normals[out], curvature[out] = run(
-                cloud, cloud[rows_t], torch.from_numpy(pool).to(self.device), rows_t, cancel, timings
-            )
+                pool = search.pool(rows, self.radius, self._pool_size(search))
+            normals[out], curvature[out] = run(cloud, cloud[rows], pool, rows, cancel, timings)
             if progress is not None:
                 progress(len(out))
         return normals, curvature
 
-    def _pool_size(self) -> int:
+    def _search(self, points: np.ndarray, cloud: torch.Tensor, shape: tuple[int, int] | None) -> _Search:
+        """The pixel grid when asked for (or, with 'auto', on a GPU) and the cloud is organized and looks like a
+        sensor-frame range image; else the KD-tree. On a CPU the cKDTree is the faster of the two (docs/RESULTS.md),
+        on a GPU the grid keeps the whole estimate on the device."""
+        wanted = self.neighbours == "grid" or (self.neighbours == "auto" and self.device.type == "cuda")
+        if wanted and shape is not None and shape[0] > 1 and shape[0] * shape[1] == len(points):
+            grid = GridIndex(cloud, *shape)
+            if grid.usable:
+                return _GridSearch(grid)
+        return _TreeSearch(NeighbourIndex(points), self.device)
+
+    def _pool_size(self, search: _Search) -> int:
+        """PCA keeps k neighbours. The network sees k points drawn from a pool: on the KD-tree the nearest
+        POOL_FACTOR × k, on the pixel grid a uniform sample of the whole ball, for which about k suffice."""
         return self.k if self.method == "pca" else POOL_FACTOR * self.k
 
     def _pca_chunk(self, cloud, centres, pool, rows, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
@@ -144,14 +197,76 @@ class NormalEstimator:
     def _learned_chunk(self, cloud, centres, pool, rows, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
         with _timed(timings, "patches"):
             patches = build_patches(cloud, centres, pool, self.radius, self.k, centre_ids=rows, seed=self.seed)
-        local = torch.empty((len(centres), 3), dtype=torch.float32, device=self.device)
+        local = self._network(patches.points, cancel, timings)
+        self.last_run.network += len(centres)
+        return _finish(to_world(local, patches.rotation), patches.curvature, patches.valid)
+
+    @torch.inference_mode()
+    def _hybrid_chunk(self, cloud, centres, pool, rows, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
+        """PCA of the whole pool everywhere (the learned method's own frame), the network where it is not flat."""
+        with _timed(timings, "pca"):
+            mask = pool >= 0
+            valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
+            local = cloud[pool.clamp_min(0)] - centres.unsqueeze(1)
+            eigvals, frame = principal_frames(masked_covariance(local, mask), valid)
+            curvature = surface_variation(eigvals)
+            normal = frame[:, 2].clone()
+            gated = torch.nonzero(valid & (curvature > self.gate)).squeeze(1)
+        if len(gated):
+            with _timed(timings, "patches"):
+                patches = build_patches(
+                    cloud, centres[gated], pool[gated], self.radius, self.k, centre_ids=rows[gated], seed=self.seed
+                )
+            local = self._network(patches.points, cancel, timings)
+            normal[gated] = to_world(local, patches.rotation).to(normal.dtype)
+            self.last_run.network += len(gated)
+        return _finish(normal, curvature, valid)
+
+    def _network(self, patches: torch.Tensor, cancel: threading.Event | None, timings: dict) -> torch.Tensor:
+        """The model over (B, k, 3) patches in batches, checking `cancel` between them."""
+        local = torch.empty((len(patches), 3), dtype=torch.float32, device=self.device)
         with _timed(timings, "network"):
-            for lo in range(0, len(centres), self.batch_size):
+            for lo in range(0, len(patches), self.batch_size):
                 if cancel is not None and cancel.is_set():
                     raise EstimationCancelled("estimation cancelled")
-                local[lo : lo + self.batch_size] = self.model(patches.points[lo : lo + self.batch_size])
+                local[lo : lo + self.batch_size] = self.model(patches[lo : lo + self.batch_size])
             _sync(self.device)
-        return _finish(to_world(local, patches.rotation), patches.curvature, patches.valid)
+        return local
+
+
+class _Search:
+    """A cloud's neighbour search: `finite` (N,) numpy bool and `pool(rows, radius, size)` -> (M, P) on the device."""
+
+    name = "none"
+    finite: np.ndarray
+
+    def pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
+        raise NotImplementedError
+
+
+class _TreeSearch(_Search):
+    """The nearest `size` points inside the ball, from a cKDTree on the CPU."""
+
+    name = "kdtree"
+
+    def __init__(self, index: NeighbourIndex, device: torch.device) -> None:
+        self.index, self.device, self.finite = index, device, index.finite
+
+    def pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
+        idx, _ = self.index.ball(self.index.points[rows.cpu().numpy()], radius, size)
+        return torch.from_numpy(idx).to(self.device)
+
+
+class _GridSearch(_Search):
+    """A uniform sample of the ball through the pixel grid, on the device (see organized.py)."""
+
+    name = "grid"
+
+    def __init__(self, grid: GridIndex) -> None:
+        self.grid, self.finite = grid, grid.finite.cpu().numpy()
+
+    def pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
+        return self.grid.ball(rows, radius, size)
 
 
 def _finish(normals: torch.Tensor, curvature: torch.Tensor, valid: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
@@ -159,6 +274,10 @@ def _finish(normals: torch.Tensor, curvature: torch.Tensor, valid: torch.Tensor)
     normals = torch.where(valid.unsqueeze(-1), normals, torch.nan)
     curvature = torch.where(valid, curvature.to(torch.float64), torch.nan)
     return normals.to(torch.float32).cpu().numpy(), curvature.to(torch.float32).cpu().numpy()
+
+
+def _is_real(value: object) -> bool:
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
 
 
 def _as_cloud(points: np.ndarray) -> np.ndarray:

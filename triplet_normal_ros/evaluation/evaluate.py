@@ -169,7 +169,8 @@ def run(
     quick: bool,
     command: str,
 ) -> None:
-    """Both data sets: tables to stdout and, with `out`, into that markdown file plus the fandisk heat map."""
+    """Every data set: tables to stdout and, with `out`, into that markdown file plus the fandisk heat map."""
+    from . import range_eval
     from .report import update_section
 
     per_cloud = min(points_per_cloud, 200) if quick else points_per_cloud
@@ -184,6 +185,14 @@ def run(
     print(val_md)
     if out is not None:
         update_section(out, "eval-val", val_md)
+
+    start = time.perf_counter()
+    scores, summary = range_eval.evaluate_depth_frames(range_eval.contenders(checkpoint, device), quick)
+    depth_md = range_eval.depth_markdown(scores, summary, header.split("\n")[0])
+    depth_md += f"\n\nWall time {(time.perf_counter() - start) / 60:.1f} min."
+    print(depth_md)
+    if out is not None:
+        update_section(out, "eval-depth", depth_md)
 
     start = time.perf_counter()
     pcp = evaluate_pcpnet(contenders, pcpnet_dir, per_cloud, quick)

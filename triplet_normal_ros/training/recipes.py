@@ -6,7 +6,7 @@ a resume under a recipe that optimises something else can be refused.
 
 from dataclasses import dataclass, field
 
-from ..core.conventions import RADIUS_FRACTION
+from ..core.conventions import MIN_NEIGHBOURS, RADIUS_FRACTION
 from ..core.model import DEFAULT_ENCODER, DEFAULT_REGRESSOR
 from ..errors import TrainingError
 from .losses import RELATIVE_FLOOR_DEG
@@ -83,9 +83,10 @@ RECIPES = {
 }
 
 
-#: Recipe sizes that must be at least 1, and epoch counts that must be at least 0 (a phase may be skipped).
+#: Recipe sizes that must be at least 1, and epoch counts that must be at least 0 (a phase may be skipped);
+#: k must be at least MIN_NEIGHBOURS (a plane needs three points) and the cos exponent at least 1.
 COUNTS = (
-    "k",
+    "exponent",
     "patches_per_shape",
     "regressor_patches_per_shape",
     "finetune_patches_per_shape",
@@ -98,7 +99,7 @@ EPOCHS = ("encoder_epochs", "regressor_epochs", "finetune_epochs")
 
 def check_counts(recipe: Recipe) -> None:
     """One clear line for a size or epoch count that cannot work, instead of a failure deep inside numpy."""
-    for names, least in ((COUNTS, 1), (EPOCHS, 0)):
+    for names, least in ((("k",), MIN_NEIGHBOURS), (COUNTS, 1), (EPOCHS, 0)):
         for name in names:
             value = getattr(recipe, name)
             if value is not None and value < least:

@@ -1,0 +1,112 @@
+"""Accuracy on simulated range images (training.range_scans): what robots see, at a metric radius.
+
+Per frame, every method estimates at the same fixed-seed subset of valid pixels, with neighbourhoods from the whole
+frame; MSAE is reported overall and on the pixels near an edge (within the radius of another face), where the
+learned method's gain sits. The hybrid row also says what fraction of points went through the network.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.conventions import POOL_FACTOR
+from ..core.estimator import NormalEstimator
+from .metrics import angles_rad
+
+#: The metric radius robots use on depth frames (issue #10): 5 cm.
+DEPTH_RADIUS = 0.05
+#: Depth frames evaluated (seeds 0..n-1 of training.range_scans.depth_frames) and query pixels per frame.
+DEPTH_FRAMES, DEPTH_QUERIES = 3, 5000
+QUICK_FRAMES, QUICK_QUERIES = 1, 300
+QUERY_SEED = 0
+
+
+@dataclass
+class MethodScore:
+    """Pooled squared angles of one method over every evaluated frame."""
+
+    name: str
+    squared: list[np.ndarray]
+    near_edge: list[np.ndarray]
+    seconds: float = 0.0
+    network: int = 0
+    estimated: int = 0
+
+    def msae(self, edge_only: bool = False) -> float:
+        sq, edge = np.concatenate(self.squared), np.concatenate(self.near_edge)
+        return float(np.mean(sq[edge] if edge_only else sq)) if (edge.any() or not edge_only) else float("nan")
+
+
+def contenders(checkpoint: str | None, device: str, k: int | None = None) -> dict[str, NormalEstimator]:
+    """PCA at the k = 30 cap (Open3D's usual), PCA over the learned method's pool, learned, and hybrid."""
+    learned = NormalEstimator("learned", radius=DEPTH_RADIUS, checkpoint=checkpoint, device=device, k=k)
+    hybrid = NormalEstimator("hybrid", radius=DEPTH_RADIUS, checkpoint=checkpoint, device=device, k=k)
+    return {
+        "PCA, k = 30": NormalEstimator("pca", radius=DEPTH_RADIUS, k=30, device=device),
+        f"PCA, k = {POOL_FACTOR * learned.k} (the learned pool)": NormalEstimator(
+            "pca", radius=DEPTH_RADIUS, k=POOL_FACTOR * learned.k, device=device
+        ),
+        "learned": learned,
+        f"hybrid (gate {hybrid.gate:g})": hybrid,
+    }
+
+
+def evaluate_depth_frames(estimators: dict[str, NormalEstimator], quick: bool) -> tuple[list[MethodScore], dict]:
+    """Score every estimator on the simulated depth frames; returns the scores and a summary of the frames."""
+    from tqdm import tqdm
+
+    from ..training.range_scans import depth_frames
+
+    frames = depth_frames(QUICK_FRAMES if quick else DEPTH_FRAMES)
+    per_frame = QUICK_QUERIES if quick else DEPTH_QUERIES
+    scores = [MethodScore(name, [], []) for name in estimators]
+    summary = {"frames": len(frames), "queries": 0, "near_edge": 0}
+    for frame in tqdm(frames, desc="eval depth", unit="frame", disable=None, file=sys.stderr):
+        points, normals = frame.points.reshape(-1, 3), frame.normals.reshape(-1, 3)
+        valid = np.flatnonzero(frame.valid.reshape(-1))
+        rng = np.random.default_rng(QUERY_SEED)
+        query = np.sort(rng.choice(valid, min(per_frame, len(valid)), replace=False))
+        edge = frame.near_edge.reshape(-1)[query]
+        summary["queries"] += len(query)
+        summary["near_edge"] += int(edge.sum())
+        for score, estimator in zip(scores, estimators.values(), strict=True):
+            start = time.perf_counter()
+            predicted, _ = estimator.estimate(points, query, shape=frame.points.shape[:2])
+            score.seconds += time.perf_counter() - start
+            score.squared.append(angles_rad(predicted, normals[query]) ** 2)
+            score.near_edge.append(edge)
+            score.network += estimator.last_run.network
+            score.estimated += estimator.last_run.estimated
+    return scores, summary
+
+
+def depth_markdown(scores: list[MethodScore], summary: dict, header: str) -> str:
+    """The depth-frame table, each method as MSAE and as a ratio to full-ball PCA and to learned."""
+    reference = next(s for s in scores if s.name.startswith("PCA, k = ") and "pool" in s.name)
+    learned = next(s for s in scores if s.name == "learned")
+    rows = []
+    for s in scores:
+        share = f"{s.network / s.estimated:.0%}" if s.estimated and s.network else "-"
+        rows.append(
+            f"| {s.name} | {s.msae():.5f} | {s.msae(True):.5f} | {s.msae() / reference.msae():.3f} "
+            f"| {s.msae() / learned.msae():.3f} | {share} | {s.seconds:.1f} |"
+        )
+    return "\n".join(
+        [
+            "## Accuracy on simulated depth frames (`triplet-normal eval`)",
+            "",
+            header,
+            f"Frames: {summary['frames']} Kinect-like 640x480 depth frames (docs/RANGE_SCANS.md, seeds 0-"
+            f"{summary['frames'] - 1}), radius {DEPTH_RADIUS} m, {summary['queries']} query pixels "
+            f"(`default_rng({QUERY_SEED})` per frame), {summary['near_edge']} of them within {DEPTH_RADIUS} m of "
+            "another face (*near edges*). MSAE in rad², sign-invariant; neighbourhoods from the whole frame.",
+            "",
+            "| method | MSAE | MSAE near edges | / PCA (pool) | / learned | network share | seconds |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+            *rows,
+        ]
+    )
