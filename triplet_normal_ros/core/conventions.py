@@ -16,7 +16,7 @@ RADIUS_FRACTION = 0.05
 #: Fewer neighbours than this inside the ball gives a NaN row (PCL's convention: a plane needs three points).
 MIN_NEIGHBOURS = 3
 #: Hybrid sends a point to the network when its PCA surface variation λ0/Σλ exceeds this (chosen in docs/RESULTS.md).
-HYBRID_GATE = 0.01
+HYBRID_GATE = 0.05
 #: PCA's neighbour cap when no k is given: large enough to be the whole ball for typical depth-camera radii.
 PCA_DEFAULT_K = 500
 
