@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.conventions import METHODS, PCA_DEFAULT_K, RADIUS_FRACTION
+from ..core.conventions import HYBRID_GATE, METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K, RADIUS_FRACTION
 from ..errors import UsageError
 from . import args as checks
 
@@ -53,6 +53,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--viewpoint", type=float, nargs=3, metavar=("X", "Y", "Z"), help="orient: flip normals to face this point"
     )
     p.add_argument("--batch-size", type=int, metavar="B", help="patches per network call (default: the estimator's)")
+    p.add_argument(
+        "--gate",
+        type=float,
+        metavar="G",
+        help=f"hybrid: surface variation above which a point goes through the network (default {HYBRID_GATE})",
+    )
+    p.add_argument(
+        "--neighbours",
+        choices=NEIGHBOUR_SEARCHES,
+        default="auto",
+        help="kdtree, grid (organized clouds: the pixel grid), or auto (grid on a GPU; default)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -69,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.input}: the cloud has zero extent, so --radius-rel gives radius 0; pass --radius")
     estimator = _make_estimator(args, radius)
     start = time.perf_counter()
-    normals, curvature = estimate_with_progress(estimator, cloud.points, query)
+    normals, curvature = estimate_with_progress(estimator, cloud.points, query, shape=(cloud.height, cloud.width))
     seconds = time.perf_counter() - start
     if args.viewpoint is not None:
         from ..core.orientation import orient_towards_viewpoint
@@ -80,20 +92,28 @@ def run(args: argparse.Namespace) -> int:
     valid = int(np.isfinite(normals).all(axis=1).sum())
     summary = (
         f"{args.input}: {len(cloud.points)} points, {len(query)} estimated, {valid} valid, {seconds:.2f} s "
-        f"({args.method}, radius {radius:.6g}, {estimator.device}) -> {out}"
+        f"({_method(estimator)}, radius {radius:.6g}, {estimator.device}, {estimator.last_run.search}) -> {out}"
     )
     print(summary, file=sys.stderr if out == "-" else sys.stdout)
     return 0
 
 
-def estimate_with_progress(estimator, points: np.ndarray, query: np.ndarray, timings: dict | None = None):
+def _method(estimator) -> str:
+    if estimator.method != "hybrid":
+        return estimator.method
+    return f"hybrid, {estimator.last_run.network_fraction:.0%} through the network"
+
+
+def estimate_with_progress(
+    estimator, points: np.ndarray, query: np.ndarray, timings: dict | None = None, shape: tuple[int, int] | None = None
+):
     """`estimator.estimate` with a tqdm bar fed by its progress callback (shown on a terminal only)."""
     if len(query) <= PROGRESS_MIN_POINTS:
-        return estimator.estimate(points, query, timings=timings)
+        return estimator.estimate(points, query, timings=timings, shape=shape)
     from tqdm import tqdm
 
     with tqdm(total=len(query), unit="pt", desc=estimator.method, disable=None, file=sys.stderr) as bar:
-        return estimator.estimate(points, query, timings=timings, progress=bar.update)
+        return estimator.estimate(points, query, timings=timings, progress=bar.update, shape=shape)
 
 
 def _check(args: argparse.Namespace) -> None:
@@ -103,6 +123,8 @@ def _check(args: argparse.Namespace) -> None:
     checks.at_least("batch-size", args.batch_size, 1)
     if args.viewpoint is not None and not np.isfinite(args.viewpoint).all():
         raise UsageError(f"--viewpoint must be three finite numbers, got {args.viewpoint}")
+    if args.gate is not None and not 0 <= args.gate <= 1 / 3:
+        raise UsageError(f"--gate must be a surface variation in [0, 1/3], got {args.gate}")
     checks.device(args.device)
 
 
@@ -128,7 +150,9 @@ def _output_path(args: argparse.Namespace) -> str:
 def _make_estimator(args: argparse.Namespace, radius: float):
     from ..core.estimator import NormalEstimator
 
-    options = {"k": args.k, "checkpoint": args.checkpoint, "device": args.device}
+    options = {"k": args.k, "checkpoint": args.checkpoint, "device": args.device, "neighbours": args.neighbours}
+    if args.gate is not None:
+        options["gate"] = args.gate
     if args.batch_size is not None:
         options["batch_size"] = args.batch_size
     return NormalEstimator(method=args.method, radius=radius, **options)

@@ -17,6 +17,8 @@ RADIUS_FRACTION = 0.05
 MIN_NEIGHBOURS = 3
 #: Hybrid sends a point to the network when its PCA surface variation λ0/Σλ exceeds this (chosen in docs/RESULTS.md).
 HYBRID_GATE = 0.05
+#: Neighbour searches: 'kdtree', 'grid' (organized clouds only; falls back to the KD-tree), 'auto' (grid on CUDA).
+NEIGHBOUR_SEARCHES = ("auto", "kdtree", "grid")
 #: PCA's neighbour cap when no k is given: large enough to be the whole ball for typical depth-camera radii.
 PCA_DEFAULT_K = 500
 

@@ -19,15 +19,13 @@ import torch
 
 from ..errors import EstimationCancelled, EstimatorError
 from .checkpoint import load_checkpoint
-from .conventions import HYBRID_GATE, METHODS, MIN_NEIGHBOURS, PCA_DEFAULT_K, POOL_FACTOR
+from .conventions import HYBRID_GATE, METHODS, MIN_NEIGHBOURS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K, POOL_FACTOR
 from .device import resolve_device
 from .frames import masked_covariance, principal_frames, surface_variation
 from .neighbours import NeighbourIndex
 from .organized import GridIndex
 from .patches import build_patches, to_world
 
-#: Neighbour searches: 'kdtree', 'grid' (organized clouds only; falls back to the KD-tree), 'auto' (grid on CUDA).
-NEIGHBOUR_SEARCHES = ("auto", "kdtree", "grid")
 #: Query points per neighbour-search chunk; bounds the (chunk, pool) index block and the cancel latency.
 CHUNK = 4096
 PCA_CHUNK = 16384

@@ -36,7 +36,7 @@ class ParamSpec:
 
 SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
-        "method", str, "learned", "Normal estimator: 'learned' (triplet network) or 'pca'.", None, "learned | pca"
+        "method", str, "learned", "Normal estimator: 'learned' (triplet network), 'pca', or 'hybrid' (PCA, the network where not flat).", None, "learned | pca | hybrid"
     ),
     ParamSpec(
         "checkpoint",
