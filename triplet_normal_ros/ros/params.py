@@ -36,7 +36,12 @@ class ParamSpec:
 
 SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
-        "method", str, "learned", "Normal estimator: 'learned' (triplet network), 'pca', or 'hybrid' (PCA, the network where not flat).", None, "learned | pca | hybrid"
+        "method",
+        str,
+        "learned",
+        "Normal estimator: 'learned' (triplet network), 'pca', or 'hybrid' (PCA; the network where not flat).",
+        None,
+        "learned | pca | hybrid",
     ),
     ParamSpec(
         "checkpoint",
