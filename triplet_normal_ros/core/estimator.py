@@ -183,7 +183,8 @@ class NormalEstimator:
         POOL_FACTOR × k, on the pixel grid a uniform sample of the whole ball, for which about k suffice."""
         return self.k if self.method == "pca" else POOL_FACTOR * self.k
 
-    def _pca_chunk(self, cloud, centres, pool, rows, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
+    def _pca_chunk(self, cloud, centres, pool, _rows, _cancel, timings) -> tuple[np.ndarray, np.ndarray]:
+        """PCA of each pool; the network methods' `rows` (hash keys) and `cancel` (between batches) are not needed."""
         with _timed(timings, "pca"):
             mask = pool >= 0
             valid = mask.sum(dim=1) >= MIN_NEIGHBOURS

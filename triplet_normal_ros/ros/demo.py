@@ -135,12 +135,12 @@ def run(prefix: Path, out: Path, step: int, names: list[str]) -> int:
     try:
         with CloudClient(INPUT, OUTPUT) as client:
             _wait_for(client, node, out)
-            print(f"learned ({LEARNED}), frames decimated to every {step}th row and column for this CPU:")
+            print(f"learned, radius {LEARNED['radius']} m, frames decimated to every {step}th row and column:")
             learned = _replay(client, [f.decimated(step) for f in frames], "learned")
             ok, reason = client.set_parameters(PCA)
             if not ok:
                 raise SystemExit(f"demo: switching to pca was rejected: {reason}")
-            print(f"pca ({PCA}), full 640x480 frames, after a run-time parameter change:")
+            print(f"pca, radius {PCA['radius']} m, k = {PCA['k']}, full 640x480 frames, after a parameter change:")
             pca = _replay(client, frames, "pca")
         _summary(learned + pca)
         for path in _pictures(out, learned, pca, step):
