@@ -57,7 +57,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--gate",
         type=float,
         metavar="G",
-        help=f"hybrid: surface variation above which a point goes through the network (default {HYBRID_GATE})",
+        help=f"hybrid: F statistic (quadric vs plane) above which the network answers (default {HYBRID_GATE:g})",
     )
     p.add_argument(
         "--neighbours",
@@ -123,8 +123,8 @@ def _check(args: argparse.Namespace) -> None:
     checks.at_least("batch-size", args.batch_size, 1)
     if args.viewpoint is not None and not np.isfinite(args.viewpoint).all():
         raise UsageError(f"--viewpoint must be three finite numbers, got {args.viewpoint}")
-    if args.gate is not None and not 0 <= args.gate <= 1 / 3:
-        raise UsageError(f"--gate must be a surface variation in [0, 1/3], got {args.gate}")
+    if args.gate is not None and not (np.isfinite(args.gate) and args.gate >= 0):
+        raise UsageError(f"--gate must be a finite F statistic >= 0, got {args.gate}")
     checks.device(args.device)
 
 

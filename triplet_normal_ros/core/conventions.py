@@ -15,8 +15,9 @@ POOL_FACTOR = 4
 RADIUS_FRACTION = 0.05
 #: Fewer neighbours than this inside the ball gives a NaN row (PCL's convention: a plane needs three points).
 MIN_NEIGHBOURS = 3
-#: Hybrid sends a point to the network when its PCA surface variation λ0/Σλ exceeds this (chosen in docs/RESULTS.md).
-HYBRID_GATE = 0.05
+#: Hybrid sends a point to the network when a quadric explains its neighbourhood better than the PCA plane by more than
+#: this F statistic (about 1 on a flat surface at any noise level; chosen in docs/RESULTS.md).
+HYBRID_GATE = 10.0
 #: Neighbour searches: 'kdtree', 'grid' (organized clouds only; falls back to the KD-tree), 'auto' (grid on CUDA).
 NEIGHBOUR_SEARCHES = ("auto", "kdtree", "grid")
 #: PCA's neighbour cap when no k is given: large enough to be the whole ball for typical depth-camera radii.

@@ -21,7 +21,7 @@ from ..errors import EstimationCancelled, EstimatorError
 from .checkpoint import load_checkpoint
 from .conventions import HYBRID_GATE, METHODS, MIN_NEIGHBOURS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K, POOL_FACTOR
 from .device import resolve_device
-from .frames import masked_covariance, principal_frames, surface_variation
+from .frames import masked_covariance, principal_frames, quadric_f_statistic, surface_variation
 from .neighbours import NeighbourIndex
 from .organized import GridIndex
 from .patches import build_patches, to_world
@@ -47,8 +47,9 @@ class RunInfo:
 class NormalEstimator:
     """Unit normals and PCL surface variation for an (N, 3) cloud, by the learned network, PCA, or both (hybrid).
 
-    `hybrid` runs PCA on the learned method's pool everywhere and the network only where PCA's surface variation
-    exceeds `gate`: near edges and corners, where PCA blurs and the network pays for itself (docs/MODEL.md).
+    `hybrid` runs PCA on the learned method's pool everywhere and the network only where a quadric fits the
+    neighbourhood better than PCA's plane by more than `gate` times the noise (an F statistic): near edges and folds,
+    where PCA blurs and the network pays for itself (docs/MODEL.md).
     """
 
     def __init__(
@@ -110,8 +111,8 @@ class NormalEstimator:
 
     @gate.setter
     def gate(self, value: float) -> None:
-        if not (_is_real(value) and 0 <= value <= 1 / 3):
-            raise EstimatorError(f"gate must be a surface variation in [0, 1/3], got {value!r}")
+        if not (_is_real(value) and np.isfinite(value) and value >= 0):
+            raise EstimatorError(f"gate must be a finite F statistic >= 0, got {value!r}")
         self._gate = float(value)
 
     @property
@@ -202,22 +203,25 @@ class NormalEstimator:
 
     @torch.inference_mode()
     def _hybrid_chunk(self, cloud, centres, pool, rows, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
-        """PCA of the whole pool everywhere (the learned method's own frame), the network where it is not flat."""
+        """PCA of the whole pool everywhere (the learned method's own frame); the network where a quadric explains
+        the neighbourhood significantly better than that plane (`frames.quadric_f_statistic` > gate)."""
         with _timed(timings, "pca"):
             mask = pool >= 0
             valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
-            local = cloud[pool.clamp_min(0)] - centres.unsqueeze(1)
+            local = torch.where(mask.unsqueeze(-1), (cloud[pool.clamp_min(0)] - centres.unsqueeze(1)) / self.radius, 0)
             eigvals, frame = principal_frames(masked_covariance(local, mask), valid)
             curvature = surface_variation(eigvals)
             normal = frame[:, 2].clone()
-            gated = torch.nonzero(valid & (curvature > self.gate)).squeeze(1)
+        with _timed(timings, "gate"):
+            structured = quadric_f_statistic(local, mask, frame) > self.gate
+            gated = torch.nonzero(valid & structured).squeeze(1)
         if len(gated):
             with _timed(timings, "patches"):
                 patches = build_patches(
                     cloud, centres[gated], pool[gated], self.radius, self.k, centre_ids=rows[gated], seed=self.seed
                 )
-            local = self._network(patches.points, cancel, timings)
-            normal[gated] = to_world(local, patches.rotation).to(normal.dtype)
+            local_normals = self._network(patches.points, cancel, timings)
+            normal[gated] = to_world(local_normals, patches.rotation).to(normal.dtype)
             self.last_run.network += len(gated)
         return _finish(normal, curvature, valid)
 

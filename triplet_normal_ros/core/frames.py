@@ -55,3 +55,35 @@ def canonical_signs(frame: torch.Tensor, points: torch.Tensor, mask: torch.Tenso
     x_axis = x_axis * sign_x.to(frame.dtype).unsqueeze(-1)
     z_axis = z_axis * sign_z.to(frame.dtype).unsqueeze(-1)
     return torch.stack((x_axis, torch.linalg.cross(z_axis, x_axis, dim=-1), z_axis), dim=1)
+
+
+#: Residual variance floor, as a fraction of r² (local coordinates are in units of r): a noiseless plane has zero
+#: residuals, and 0/0 must read as "no structure" rather than as an arbitrary ratio.
+_RESIDUAL_FLOOR = 1e-8
+
+
+def quadric_f_statistic(local: torch.Tensor, mask: torch.Tensor, frame: torch.Tensor) -> torch.Tensor:
+    """How much better a quadric z = f(x, y) explains each neighbourhood than its PCA plane, relative to the noise.
+
+    The F statistic ((SS_plane - SS_quadric) / 3) / (SS_quadric / (n - 6)) of the heights above the PCA plane: about 1
+    on a flat surface whatever the noise level, large where the ball straddles an edge or a fold. PCA's surface
+    variation cannot tell a noisy far-away floor from an edge (noise alone raises it), this can, which is what the
+    hybrid method's gate needs. `local` (B, P, 3) in units of the radius, `mask` (B, P), `frame` (B, 3, 3) as from
+    `principal_frames`. Rows with fewer than 7 points get 0.
+    """
+    weight = mask.to(local.dtype)
+    count = weight.sum(dim=1)
+    mean = (local * weight.unsqueeze(-1)).sum(dim=1) / count.clamp_min(1).unsqueeze(-1)
+    xyz = torch.einsum("bpj,bij->bpi", local - mean.unsqueeze(1), frame.to(local.dtype)) * weight.unsqueeze(-1)
+    x, y, z = xyz.unbind(dim=-1)
+    design = torch.stack((weight, x, y, x * x, x * y, y * y), dim=-1)
+    gram = design.transpose(1, 2) @ design
+    gram = gram + torch.eye(6, dtype=gram.dtype, device=gram.device) * 1e-12
+    rhs = design.transpose(1, 2) @ z.unsqueeze(-1)
+    coef = torch.linalg.solve(gram, rhs)
+    ss_quadric = (z - (design @ coef).squeeze(-1)).pow(2).sum(dim=1)
+    ss_plane = z.pow(2).sum(dim=1)
+    dof = (count - 6).clamp_min(1)
+    noise = (ss_quadric / dof).clamp_min(_RESIDUAL_FLOOR)
+    f = (ss_plane - ss_quadric).clamp_min(0) / 3 / noise
+    return torch.where(count >= 7, f, 0.0)

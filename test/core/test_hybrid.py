@@ -1,0 +1,89 @@
+"""The hybrid method and its gate: PCA where the neighbourhood is a plane, the network where it is not."""
+
+import numpy as np
+import pytest
+import torch
+
+from triplet_normal_ros.core.conventions import POOL_FACTOR
+from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.frames import masked_covariance, principal_frames, quadric_f_statistic
+from triplet_normal_ros.errors import EstimatorError
+
+
+def _f_of(points: np.ndarray) -> float:
+    """The F statistic of one neighbourhood given as (P, 3) points in units of the radius."""
+    local = torch.from_numpy(points).unsqueeze(0)
+    mask = torch.ones(local.shape[:2], dtype=torch.bool)
+    _, frame = principal_frames(masked_covariance(local, mask), torch.tensor([True]))
+    return float(quadric_f_statistic(local, mask, frame)[0])
+
+
+def _disc(n: int, rng: np.random.Generator) -> np.ndarray:
+    radius, angle = np.sqrt(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n)
+    return np.c_[radius * np.cos(angle), radius * np.sin(angle)]
+
+
+@pytest.mark.parametrize("sigma", [0.01, 0.1])
+def test_f_is_about_one_on_a_noisy_plane_whatever_the_noise(sigma: float) -> None:
+    rng = np.random.default_rng(0)
+    values = [_f_of(np.c_[_disc(300, rng), rng.normal(0, sigma, 300)]) for _ in range(40)]
+    assert 0.6 < np.median(values) < 1.6  # F(3, 294) has median ~0.8 and is independent of sigma
+
+
+def test_f_is_large_across_a_crease_and_zero_on_a_clean_plane() -> None:
+    rng = np.random.default_rng(1)
+    xy = _disc(300, rng)
+    crease = np.c_[xy, 0.5 * np.abs(xy[:, 0]) + rng.normal(0, 0.01, 300)]  # a 53° fold through the centre
+    assert _f_of(crease) > 100
+    assert _f_of(np.c_[xy, np.zeros(300)]) == 0.0
+
+
+def _box_corner_cloud(n: int = 6000, sigma: float = 0.004, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Three faces of a unit cube meeting at the origin, with noise: a mix of flat points and edges."""
+    rng = np.random.default_rng(seed)
+    face = rng.integers(0, 3, n)
+    points = rng.uniform(0, 1, (n, 3))
+    points[np.arange(n), face] = 0.0
+    normals = np.eye(3)[face]
+    return points + rng.normal(0, sigma, points.shape), normals
+
+
+def test_hybrid_is_pca_on_flat_points_and_learned_on_gated_ones() -> None:
+    points, _ = _box_corner_cloud()
+    hybrid = NormalEstimator("hybrid", radius=0.1, device="cpu")
+    learned = NormalEstimator("learned", radius=0.1, device="cpu")
+    pca = NormalEstimator("pca", radius=0.1, k=POOL_FACTOR * learned.k, device="cpu")
+    query = np.arange(0, len(points), 7)
+    h, hc = hybrid.estimate(points, query)
+    ln, _ = learned.estimate(points, query)
+    pn, pc = pca.estimate(points, query)
+    same_as_learned = np.abs(np.einsum("ij,ij->i", h, ln)) > 1 - 1e-6
+    same_as_pca = np.abs(np.einsum("ij,ij->i", h, pn)) > 1 - 1e-6
+    assert np.all(same_as_learned | same_as_pca)
+    info = hybrid.last_run
+    assert info.estimated == len(query) and 0 < info.network < len(query)
+    assert abs(info.network - np.sum(same_as_learned & ~same_as_pca)) <= np.sum(same_as_learned & same_as_pca)
+    np.testing.assert_allclose(hc, pc, rtol=1e-5)  # curvature is always the pool's PCA surface variation
+    to_other_face = np.sort(points[query], axis=1)[:, 1]  # each point lies on the face of its smallest coordinate
+    gated = same_as_learned & ~same_as_pca
+    assert gated[to_other_face < 0.05].mean() > 0.9  # the ball straddles the edge: the network answers
+    assert gated[to_other_face > 0.1].mean() < 0.1  # the ball is one noisy plane: PCA answers
+
+
+def test_gate_zero_is_learned_and_an_infinite_gate_is_pca() -> None:
+    points, _ = _box_corner_cloud(3000)
+    query = np.arange(0, len(points), 11)
+    learned = NormalEstimator("learned", radius=0.1, device="cpu").estimate(points, query)[0]
+    pca = NormalEstimator("pca", radius=0.1, k=4 * 128, device="cpu").estimate(points, query)[0]
+    everything = NormalEstimator("hybrid", radius=0.1, gate=0.0, device="cpu")
+    nothing = NormalEstimator("hybrid", radius=0.1, gate=1e30, device="cpu")
+    for estimator, expected in ((everything, learned), (nothing, pca)):
+        cosine = np.einsum("ij,ij->i", estimator.estimate(points, query)[0], expected)
+        np.testing.assert_allclose(np.abs(cosine), 1, atol=1e-6)
+    assert nothing.last_run.network == 0 and everything.last_run.network == len(query)
+
+
+@pytest.mark.parametrize("gate", [-1.0, float("nan"), float("inf"), True, "4"])
+def test_bad_gates_are_refused(gate: object) -> None:
+    with pytest.raises(EstimatorError, match="gate must be"):
+        NormalEstimator("pca", gate=gate)
