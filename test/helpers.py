@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from triplet_normal_ros.io.cloud_files import write_normals
-from triplet_normal_ros.training.dataset import Cloud, build_dataset
+from triplet_normal_ros.training.dataset import LabelledCloud, build_dataset
 
 # --- training data -------------------------------------------------------------------------------------------------
 
@@ -17,7 +17,7 @@ from triplet_normal_ros.training.dataset import Cloud, build_dataset
 HELDOUT_SHAPE = "v_notch_block"
 
 
-def heldout_cad_cloud(n_points: int = 20_000, noise: float = 0.01, seed: int = 123) -> Cloud:
+def heldout_cad_cloud(n_points: int = 20_000, noise: float = 0.01, seed: int = 123) -> LabelledCloud:
     """`HELDOUT_SHAPE` with `n_points` points at `noise` × its bbox diagonal, exactly as the validation set draws it
     for dataset seed `seed`: the accuracy regression tests measure the shipped checkpoint on it."""
     clouds = build_dataset("val", n_points, seed, shapes=[HELDOUT_SHAPE], noise_levels=[noise], progress=False)

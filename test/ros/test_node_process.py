@@ -1,7 +1,7 @@
 """The real thing across processes: colcon-build the package, run the installed ``node``, talk to it over DDS.
 
 The node runs in its own process; this test process publishes real Kinect frames and receives the answers through
-its own rclpy context (``ProbeClient``: the demo's ``CloudClient`` plus test-only calls). Full frames use ``pca``
+its own rclpy context (``ProbeClient``: the demo's ``ReplayClient`` plus test-only calls). Full frames use ``pca``
 (fast); ``learned`` runs on a small crop.
 """
 
@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cloud_client import ProbeClient, cropped
 from conftest import PACKAGE, NodeProcess, installed_env, params_yaml, site_packages
+from probe_client import ProbeClient, cropped
 from scipy.spatial import cKDTree
 from sensor_msgs.msg import PointCloud2, PointField
 

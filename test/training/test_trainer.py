@@ -16,7 +16,7 @@ from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.neighbours import NeighbourIndex
 from triplet_normal_ros.errors import TrainingError, UsageError
 from triplet_normal_ros.evaluation.ablation import _variants, reference_estimator
-from triplet_normal_ros.training.batches import CloudSampler
+from triplet_normal_ros.training.batches import PatchSampler
 from triplet_normal_ros.training.dataset import build_dataset
 from triplet_normal_ros.training.recipes import RECIPES
 from triplet_normal_ros.training.triplets import mine_triplets
@@ -127,7 +127,7 @@ def test_triplet_patches_are_seen_in_the_anchor_frame():
     rotated into the anchor's frame instead, or the triplet loss cannot see the turn across an edge: there a negative
     (normal > 20° from the anchor's) lies tilted, a positive almost flat."""
     cloud = build_dataset("train", n_points=4000, shapes=["wedge"], noise_levels=[0.0], progress=False)[0]
-    sampler = CloudSampler(cloud.points, cloud.normals, 0.05, 32)
+    sampler = PatchSampler(cloud.points, cloud.normals, 0.05, 32)
     triplets = sampler.triplets(200, np.random.default_rng(1), torch.Generator().manual_seed(1))
     assert len(triplets.anchor) > 150
     assert np.median(_tilt_deg(triplets.anchor)) < 5.0

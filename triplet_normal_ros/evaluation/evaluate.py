@@ -29,7 +29,7 @@ QUICK_PCPNET_NOISE = (0.0, 0.012)
 
 
 @dataclass
-class CloudResult:
+class CloudScores:
     """Scores of the three contenders on one cloud, and per-point angles for the heat map and the intervals."""
 
     shape: str
@@ -131,7 +131,7 @@ def pcpnet_noisy(points: np.ndarray, sigma_rel: float, diag: float) -> np.ndarra
 # ---------------------------------------------------------------- runs
 
 
-def evaluate_validation(contenders: Contenders, per_cloud: int, quick: bool) -> list[CloudResult]:
+def evaluate_validation(contenders: Contenders, per_cloud: int, quick: bool) -> list[CloudScores]:
     from tqdm import tqdm
 
     results = []
@@ -139,11 +139,11 @@ def evaluate_validation(contenders: Contenders, per_cloud: int, quick: bool) -> 
         points = np.asarray(cloud.points, dtype=np.float64)
         query = query_indices(len(points), per_cloud)
         ours, pca, best, angles = contenders.score(points, cloud.normals[query], query, bbox_diagonal(points))
-        results.append(CloudResult(cloud.name, cloud.kind, cloud.noise, len(query), ours, pca, best, angles))
+        results.append(CloudScores(cloud.name, cloud.kind, cloud.noise, len(query), ours, pca, best, angles))
     return results
 
 
-def evaluate_pcpnet(contenders: Contenders, directory: Path, per_cloud: int, quick: bool) -> list[CloudResult]:
+def evaluate_pcpnet(contenders: Contenders, directory: Path, per_cloud: int, quick: bool) -> list[CloudScores]:
     from tqdm import tqdm
 
     shapes = pcpnet_shapes(directory, quick)
@@ -156,7 +156,7 @@ def evaluate_pcpnet(contenders: Contenders, directory: Path, per_cloud: int, qui
         query = query_indices(len(points), per_cloud)
         ours, pca, best, angles = contenders.score(points, normals[query], query, diag)
         kind = "cad" if name in ("cube100k", "fandisk100k") else "smooth"
-        results.append(CloudResult(name, kind, level, len(query), ours, pca, best, angles, points[query]))
+        results.append(CloudScores(name, kind, level, len(query), ours, pca, best, angles, points[query]))
     return results
 
 
@@ -211,7 +211,7 @@ def pcpnet_shapes_present(directory: Path) -> None:
         raise CloudFileError(f"{directory}: missing PCPNet shape(s) {', '.join(missing)} (pass --pcpnet-dir)")
 
 
-def _heatmap(results: list[CloudResult], path: Path) -> tuple[Path, CloudResult] | None:
+def _heatmap(results: list[CloudScores], path: Path) -> tuple[Path, CloudScores] | None:
     """Fandisk at 1.2% (or, in a --quick subset without it, the noisiest cloud of the first shape)."""
     from .plots import error_heatmap
 
@@ -253,7 +253,7 @@ def _sha256(checkpoint: str | None) -> str:
     return hashlib.sha256(resolve_checkpoint(checkpoint).read_bytes()).hexdigest()
 
 
-def _row(r: CloudResult) -> str:
+def _row(r: CloudScores) -> str:
     return (
         f"| {r.shape} | {r.kind} | {r.noise * 100:g} | {r.ours[0]:.4f} | {r.pca[0]:.4f} | {r.best[0]:.4f} "
         f"({r.best[2] * 100:g}%) | {r.ours[1]:.2f} | {r.pca[1]:.2f} | {r.best[1]:.2f} | {r.ours[2]} / {r.pca[2]} |"
@@ -266,9 +266,9 @@ _TABLE_HEAD = (
 )
 
 
-def _averages(results: list[CloudResult]) -> str:
+def _averages(results: list[CloudScores]) -> str:
     """Mean scores per (kind, noise level), then per kind over all noise levels."""
-    groups: dict[tuple[str, str], list[CloudResult]] = {}
+    groups: dict[tuple[str, str], list[CloudScores]] = {}
     for r in sorted(results, key=lambda r: (r.kind, r.noise)):
         groups.setdefault((r.kind, f"{r.noise * 100:g}"), []).append(r)
     for r in sorted(results, key=lambda r: r.kind):
@@ -287,12 +287,12 @@ def _averages(results: list[CloudResult]) -> str:
     return "\n".join(lines)
 
 
-def _mean(results: list[CloudResult], which: str, metric: int, keep) -> float:
+def _mean(results: list[CloudScores], which: str, metric: int, keep) -> float:
     values = [getattr(r, which)[metric] for r in results if keep(r)]
     return float(np.mean(values)) if values else float("nan")
 
 
-def _interval(results: list[CloudResult], keep, digits: int) -> str:
+def _interval(results: list[CloudScores], keep, digits: int) -> str:
     """', 95% CI lo-hi' for the ours / PCA MSAE ratio over the kept clouds, or '' without per-point angles."""
     pairs = [(ours**2, pca**2) for ours, pca in (r.angles for r in results if keep(r) and r.angles is not None)]
     if not pairs:
@@ -301,7 +301,7 @@ def _interval(results: list[CloudResult], keep, digits: int) -> str:
     return f", 95% CI {lo:.{digits}f}-{hi:.{digits}f}"
 
 
-def validation_markdown(results: list[CloudResult], header: str, seconds: float) -> str:
+def validation_markdown(results: list[CloudScores], header: str, seconds: float) -> str:
     cad_noisy = lambda r: r.kind == "cad" and r.noise in (0.005, 0.01)  # noqa: E731
     smooth = lambda r: r.kind == "smooth"  # noqa: E731
     cad_ratio = _mean(results, "ours", 0, cad_noisy) / _mean(results, "pca", 0, cad_noisy)
@@ -336,10 +336,10 @@ def validation_markdown(results: list[CloudResult], header: str, seconds: float)
 
 
 def pcpnet_markdown(
-    results: list[CloudResult],
+    results: list[CloudScores],
     header: str,
     seconds: float,
-    image: tuple[Path, CloudResult] | None,
+    image: tuple[Path, CloudScores] | None,
     doc_dir: Path | None,
 ) -> str:
     targets = []

@@ -44,7 +44,7 @@ _NORMAL_NAMES = (("nx", "ny", "nz"), ("normal_x", "normal_y", "normal_z"))
 
 
 @dataclass
-class CloudData:
+class CloudFile:
     """What a point file holds: points (N, 3) float64 with NaN rows kept, optional normals, and the organized shape."""
 
     points: np.ndarray
@@ -61,7 +61,7 @@ def read_points(path: str | Path) -> np.ndarray:
     return read_cloud(path).points
 
 
-def read_cloud(path: str | Path) -> CloudData:
+def read_cloud(path: str | Path) -> CloudFile:
     """Points plus whatever normals / organization the file carries; checks shape and that ≥ 3 points are finite."""
     path = Path(path)
     readers = {".xyz": _read_xyz, ".npy": _read_npy, ".ply": _read_ply, ".pcd": _read_pcd}
@@ -81,7 +81,7 @@ def read_cloud(path: str | Path) -> CloudData:
 def read_normals_file(path: str | Path) -> np.ndarray:
     """A PCPNet .normals text file: (N, 3) float64, one normal per line (used as ground truth by `eval`)."""
     path = Path(path)
-    return _checked(path, CloudData(_load_text_columns(path, 3))).points
+    return _checked(path, CloudFile(_load_text_columns(path, 3))).points
 
 
 def read_indices(path: str | Path, n_points: int) -> np.ndarray:
@@ -130,7 +130,7 @@ def _float64(values: np.ndarray) -> np.ndarray:
         return np.asarray(values, dtype=np.float64)
 
 
-def _checked(path: Path, cloud: CloudData) -> CloudData:
+def _checked(path: Path, cloud: CloudFile) -> CloudFile:
     points = cloud.points
     if points.ndim != 2 or points.shape[1] != 3:
         raise CloudFileError(f"{path}: expected (N, 3) points, got shape {points.shape}")
@@ -143,8 +143,8 @@ def _checked(path: Path, cloud: CloudData) -> CloudData:
     return cloud
 
 
-def _read_xyz(path: Path) -> CloudData:
-    return CloudData(_load_text_columns(path, 3))
+def _read_xyz(path: Path) -> CloudFile:
+    return CloudFile(_load_text_columns(path, 3))
 
 
 def _load_text_columns(path: Path, n: int) -> np.ndarray:
@@ -159,7 +159,7 @@ def _load_text_columns(path: Path, n: int) -> np.ndarray:
     return data
 
 
-def _read_npy(path: Path) -> CloudData:
+def _read_npy(path: Path) -> CloudFile:
     """Header first (dtype, shape, size against the file's length), so a cut file and a pickle get their own line."""
     with path.open("rb") as f:
         try:
@@ -180,7 +180,7 @@ def _read_npy(path: Path) -> CloudData:
         raise _cut_short(path, shape[0], held // row_bytes)
     array = np.load(path, allow_pickle=False)
     normals = _float64(array[:, 3:6]) if array.shape[1] >= 6 else None
-    return CloudData(_float64(array[:, :3]), normals)
+    return CloudFile(_float64(array[:, :3]), normals)
 
 
 def _pypcd4():
@@ -214,7 +214,7 @@ class _PcdHeader:
     encoding: str
 
 
-def _read_pcd(path: Path) -> CloudData:
+def _read_pcd(path: Path) -> CloudFile:
     with path.open("rb") as f:
         header = _pcd_header(path, f)
         decode = {"ascii": _pcd_ascii, "binary": _pcd_binary, "binary_compressed": _pcd_compressed}[header.encoding]
@@ -228,7 +228,7 @@ def _read_pcd(path: Path) -> CloudData:
         return np.stack([_float64(table[f"f{fields.index(n)}"][:, 0]) for n in names], axis=1)
 
     normals = columns(_NORMAL_NAMES[1]) if set(_NORMAL_NAMES[1]) <= set(fields) else None
-    return CloudData(columns(("x", "y", "z")), normals, header.height, header.width)
+    return CloudFile(columns(("x", "y", "z")), normals, header.height, header.width)
 
 
 def _pcd_header(path: Path, f) -> _PcdHeader:
@@ -350,7 +350,7 @@ def _pcd_compressed(path: Path, f, header: _PcdHeader) -> np.ndarray:
 # ---------------------------------------------------------------- PLY
 
 
-def _read_ply(path: Path) -> CloudData:
+def _read_ply(path: Path) -> CloudFile:
     with path.open("rb") as f:
         fmt, elements = _ply_header(path, f)
         vertex = _ply_vertex(path, f, fmt, elements)
@@ -367,7 +367,7 @@ def _read_ply(path: Path) -> CloudData:
         ),
         None,
     )
-    return CloudData(points, normals)
+    return CloudFile(points, normals)
 
 
 def _ply_header(path: Path, f) -> tuple[str, list[tuple[str, int, list[tuple[str, str | None]]]]]:

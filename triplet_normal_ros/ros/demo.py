@@ -22,7 +22,7 @@ import numpy as np
 
 from ..evaluation.normal_map import normals_to_rgb, side_by_side, stack_rows, upscale, write_png
 from ..io.pointcloud2 import NORMAL_FIELDS, read_field
-from .replay import FRAMES, CloudClient, Frame, load_frame
+from .replay import FRAMES, Frame, ReplayClient, load_frame
 
 INPUT, OUTPUT = "/demo/camera/depth/points", "/demo/camera/depth/normals"
 LEARNED = {"method": "learned", "radius": 0.05}
@@ -82,7 +82,7 @@ def _start_node(prefix: Path, out: Path, env: dict[str, str]) -> subprocess.Pope
     return subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=out)
 
 
-def _wait_for(client: CloudClient, node: subprocess.Popen, out: Path, timeout: float = 120.0) -> None:
+def _wait_for(client: ReplayClient, node: subprocess.Popen, out: Path, timeout: float = 120.0) -> None:
     """Until the node's topics and services match; fail fast (with its own error line) if it exits instead."""
     deadline = time.monotonic() + timeout
     while not client.wait_for_node(1.0):
@@ -91,7 +91,7 @@ def _wait_for(client: CloudClient, node: subprocess.Popen, out: Path, timeout: f
             raise SystemExit(f"demo: the node did not come up: {log[-1] if log else 'no output'}")
 
 
-def _replay(client: CloudClient, frames: list[Frame], method: str) -> list[Result]:
+def _replay(client: ReplayClient, frames: list[Frame], method: str) -> list[Result]:
     results = []
     for frame in frames:
         cloud = frame.to_cloud(client.header())
@@ -133,7 +133,7 @@ def run(prefix: Path, out: Path, step: int, names: list[str]) -> int:
     os.environ.update({k: v for k, v in env.items() if k.startswith(("ROS_", "RCUTILS_"))})
     node = _start_node(prefix, out, env)
     try:
-        with CloudClient(INPUT, OUTPUT) as client:
+        with ReplayClient(INPUT, OUTPUT) as client:
             _wait_for(client, node, out)
             print(f"learned, radius {LEARNED['radius']} m, frames decimated to every {step}th row and column:")
             learned = _replay(client, [f.decimated(step) for f in frames], "learned")

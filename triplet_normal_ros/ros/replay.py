@@ -1,6 +1,6 @@
 """Replay the shipped Kinect frames into a running node and collect its answers, from a separate process.
 
-Used by ``make demo`` (and, extended under test/ros/, by the cross-process tests). :class:`CloudClient` owns its own
+Used by ``make demo`` (and, extended under test/ros/, by the cross-process tests). :class:`ReplayClient` owns its own
 rclpy context, so it can live in a test process (or beside other nodes) without touching the default context.
 """
 
@@ -73,7 +73,7 @@ def load_frame(name: str) -> Frame:
         return Frame(name, xyz, data["rgb"].astype(np.uint32))
 
 
-class CloudClient:
+class ReplayClient:
     """Publishes clouds to the node's input and waits for each answer on its output, matched by header stamp."""
 
     def __init__(self, input_topic: str, output_topic: str, node_name: str = "triplet_normal") -> None:
@@ -131,7 +131,7 @@ class CloudClient:
         self.node.destroy_node()
         rclpy.try_shutdown(context=self._context)
 
-    def __enter__(self) -> CloudClient:
+    def __enter__(self) -> ReplayClient:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -27,7 +27,7 @@ class NormalSet:
     patch_normals: torch.Tensor  # (n, k, 3) ground truth of the k points fed to the network, patch frame
 
 
-class CloudSampler:
+class PatchSampler:
     """One training cloud, its KD-tree and its radius (radius_rel × its bounding-box diagonal, as at inference)."""
 
     def __init__(self, points: np.ndarray, normals: np.ndarray, radius_rel: float, k: int) -> None:
@@ -75,14 +75,14 @@ class CloudSampler:
         return NormalSet(p.points[ok], centre_normal[ok], patch_normals[ok])
 
 
-def collect_triplets(samplers: list[CloudSampler], per_cloud: int, seed: int, desc: str) -> TripletSet:
+def collect_triplets(samplers: list[PatchSampler], per_cloud: int, seed: int, desc: str) -> TripletSet:
     """One epoch of triplets, `per_cloud` anchors from every cloud, reproducible from `seed`."""
     rng, generator = np.random.default_rng(seed), torch.Generator().manual_seed(seed)
     parts = [s.triplets(per_cloud, rng, generator) for s in tqdm(samplers, desc=desc, unit="cloud", leave=False)]
     return TripletSet(*(torch.cat([getattr(p, f) for p in parts]) for f in ("anchor", "positive", "negative")))
 
 
-def collect_normal_patches(samplers: list[CloudSampler], per_cloud: int, seed: int, desc: str) -> NormalSet:
+def collect_normal_patches(samplers: list[PatchSampler], per_cloud: int, seed: int, desc: str) -> NormalSet:
     rng, generator = np.random.default_rng(seed), torch.Generator().manual_seed(seed)
     parts = [s.normal_patches(per_cloud, rng, generator) for s in tqdm(samplers, desc=desc, unit="cloud", leave=False)]
     return NormalSet(

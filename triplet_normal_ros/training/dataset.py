@@ -29,8 +29,9 @@ CACHE_ENV = "TRIPLET_NORMAL_CACHE"
 
 
 @dataclass
-class Cloud:
-    """One training / validation cloud: float32 (n, 3) points and unit normals in the normalised frame."""
+class LabelledCloud:
+    """One training / validation cloud labelled with its exact normals: float32 (n, 3) points and unit normals in the
+    normalised frame, the shape name and kind, and the noise level (× the bounding-box diagonal)."""
 
     name: str
     kind: str
@@ -166,7 +167,7 @@ def build_dataset(
     shapes: Iterable[str | ShapeSpec] | None = None,
     noise_levels: Iterable[float] = NOISE_LEVELS,
     progress: bool = True,
-) -> list[Cloud]:
+) -> list[LabelledCloud]:
     """Every (shape, noise level) cloud of a split, shape-major: 22 × 6 = 132 for 'train'.
 
     Only the clean sample of each shape is cached (`.npz`, keyed by shape, params, n, seed and CODE_VERSION); the
@@ -184,5 +185,5 @@ def build_dataset(
         normals.setflags(write=False)
         for level in levels:
             noisy = add_noise(points, level, _seed(seed, spec.name, round(level * 1e6))) if level > 0 else points
-            clouds.append(Cloud(spec.name, spec.kind, level, noisy, normals))
+            clouds.append(LabelledCloud(spec.name, spec.kind, level, noisy, normals))
     return clouds

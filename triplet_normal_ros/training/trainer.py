@@ -27,7 +27,7 @@ from ..core.checkpoint import load_checkpoint, save_checkpoint
 from ..core.device import resolve_device
 from ..core.model import TripletNormalNet
 from ..errors import TrainingError
-from .batches import CloudSampler, NormalSet, TripletSet, collect_normal_patches, collect_triplets
+from .batches import NormalSet, PatchSampler, TripletSet, collect_normal_patches, collect_triplets
 from .curves import plot_curves
 from .losses import patch_loss, triplet_loss
 from .recipes import RESUME_FIXED, Recipe
@@ -46,8 +46,8 @@ class TrainingRun:
 
     model: TripletNormalNet
     recipe: Recipe
-    train_set: list[CloudSampler]
-    val_set: list[CloudSampler]
+    train_set: list[PatchSampler]
+    val_set: list[PatchSampler]
     device: torch.device
     run_dir: Path
     state: dict | None = None
@@ -166,12 +166,12 @@ def _metadata(recipe: Recipe, summary: dict) -> dict:
     }
 
 
-def _samplers(recipe: Recipe, split: str) -> list[CloudSampler]:
+def _samplers(recipe: Recipe, split: str) -> list[PatchSampler]:
     from .dataset import build_dataset  # training-only dependencies (trimesh, manifold3d)
 
     shapes = recipe.shapes if split == "train" else recipe.val_shapes
     clouds = build_dataset(split=split, n_points=recipe.n_points, seed=recipe.seed, shapes=shapes)
-    return [CloudSampler(c.points, c.normals, recipe.radius_rel, recipe.k) for c in clouds]
+    return [PatchSampler(c.points, c.normals, recipe.radius_rel, recipe.k) for c in clouds]
 
 
 def _phase_encoder(run: TrainingRun) -> None:

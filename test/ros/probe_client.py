@@ -1,4 +1,4 @@
-"""What the cross-process tests need beyond the demo's :class:`CloudClient`: fire-and-forget sends, resending, crops.
+"""What the cross-process tests need beyond the demo's :class:`ReplayClient`: fire-and-forget sends, resending, crops.
 
 Kept under test/ so the runtime package ships only what ``make demo`` uses.
 """
@@ -9,11 +9,11 @@ import time
 
 from sensor_msgs.msg import PointCloud2
 
-from triplet_normal_ros.ros.replay import CloudClient, Frame
+from triplet_normal_ros.ros.replay import Frame, ReplayClient
 
 
-class ProbeClient(CloudClient):
-    """A :class:`CloudClient` that can also publish without waiting and resend over a lossy (best-effort) input."""
+class ProbeClient(ReplayClient):
+    """A :class:`ReplayClient` that can also publish without waiting and resend over a lossy (best-effort) input."""
 
     def send(self, cloud: PointCloud2) -> None:
         """Publish without waiting (for clouds the node is expected to reject)."""
