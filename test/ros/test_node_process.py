@@ -293,6 +293,8 @@ def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, insta
     node = start_node(shipped, {"input": "/tn_term/in", "output": "/tn_term/out"})
     assert node.wait_for_log("ready:", 60), node.log
     assert "method=learned, checkpoint=default" in node.log
+    rate = re.search(r"expected throughput on cpu: about ([\d,]+) points/s \(~([\d.]+) s for a full 640x480", node.log)
+    assert rate and int(rate[1].replace(",", "")) > 100, node.log  # logged before the first cloud, on its device
     with ProbeClient("/tn_term/in", "/tn_term/out") as c:
         assert c.wait_for_node(30)
         out = c.request_resending(small_cloud(c, frame), timeout=60, every=5.0)

@@ -80,8 +80,6 @@ class NormalEstimator:
         self.batch_size = batch_size
         self.seed = seed
         self.gate = gate
-        if neighbours not in NEIGHBOUR_SEARCHES:
-            raise EstimatorError(f"neighbours must be one of {NEIGHBOUR_SEARCHES}, got {neighbours!r}")
         self.neighbours = neighbours
         self.last_run = RunInfo()
 
@@ -114,6 +112,16 @@ class NormalEstimator:
         if not (_is_real(value) and np.isfinite(value) and value >= 0):
             raise EstimatorError(f"gate must be a finite F statistic >= 0, got {value!r}")
         self._gate = float(value)
+
+    @property
+    def neighbours(self) -> str:
+        return self._neighbours
+
+    @neighbours.setter
+    def neighbours(self, value: str) -> None:
+        if value not in NEIGHBOUR_SEARCHES:
+            raise EstimatorError(f"neighbours must be one of {NEIGHBOUR_SEARCHES}, got {value!r}")
+        self._neighbours = value
 
     @property
     def batch_size(self) -> int:

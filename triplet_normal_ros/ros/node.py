@@ -28,6 +28,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import PointCloud2
 
+from ..core import throughput
 from ..core.estimator import NormalEstimator
 from ..core.orientation import orient_towards_viewpoint
 from ..errors import CheckpointError, CloudFormatError, EstimationCancelled, EstimatorError
@@ -94,6 +95,7 @@ class TripletNormalNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         settings = self._declare_parameters()
         estimator = self._build(settings, StartupError)
+        self._log_expected_throughput(estimator)  # before the worker exists: the probe uses the estimator alone
         self._active: tuple[NormalEstimator, NodeSettings] = (estimator, settings)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -120,6 +122,15 @@ class TripletNormalNode(Node):
         self.get_logger().info(
             f"ready: {self._subscription.topic_name} -> {self._publisher.topic_name}, {self._describe(*self._active)}"
         )
+
+    def _log_expected_throughput(self, estimator: NormalEstimator) -> None:
+        """Measure the estimator on a small probe cloud and say what a full frame will cost on this device."""
+        try:
+            rate = throughput.measure(estimator)
+        except Exception as error:  # a probe failure must never stop the node; the first real cloud will tell
+            self.get_logger().warning(f"could not measure the expected throughput: {error}")
+            return
+        self.get_logger().info(rate.describe(str(estimator.device)))
 
     # -- parameters -------------------------------------------------------------------------------------------------
 
@@ -166,7 +177,8 @@ class TripletNormalNode(Node):
         source = "" if s.method == "pca" else f", checkpoint={s.checkpoint or 'default'}"
         return (
             f"method={s.method}{source}, device={estimator.device}, radius={s.radius:g} m, k={_k(estimator, s)}, "
-            f"batch_size={s.batch_size}, orient={s.orient}, viewpoint={list(s.viewpoint)}"
+            f"batch_size={s.batch_size}, gate={s.gate:g}, neighbours={s.neighbours}, orient={s.orient}, "
+            f"viewpoint={list(s.viewpoint)}"
         )
 
     # -- worker -----------------------------------------------------------------------------------------------------
@@ -194,13 +206,13 @@ class TripletNormalNode(Node):
             out = empty_with_normals(msg)
         else:
             points = read_xyz(msg)
-            normals, curvature = self._estimate(estimator, settings, points)
+            normals, curvature = self._estimate(estimator, settings, points, (msg.height, msg.width))
             out = with_normals(msg, normals, curvature)
         self._publisher.publish(out)
         self._stats.record((time.perf_counter() - start) * 1e3)
 
     def _estimate(
-        self, estimator: NormalEstimator, s: NodeSettings, points: np.ndarray
+        self, estimator: NormalEstimator, s: NodeSettings, points: np.ndarray, shape: tuple[int, int] | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """Normals and curvature for every point; NaN rows where xyz is not finite or the ball is too sparse."""
         if not np.isfinite(points).all(axis=1).any():
@@ -209,8 +221,10 @@ class TripletNormalNode(Node):
             )
             return np.full((len(points), 3), np.nan, np.float32), np.full(len(points), np.nan, np.float32)
         estimator.radius, estimator.k, estimator.batch_size = s.radius, _k(estimator, s), s.batch_size
-        # Holes (non-finite xyz) are skipped by the estimator itself and come back as NaN rows.
-        normals, curvature = estimator.estimate(points, cancel=self._cancel)
+        estimator.gate, estimator.neighbours = s.gate, s.neighbours
+        # Holes (non-finite xyz) are skipped by the estimator itself and come back as NaN rows; an organized cloud's
+        # (height, width) lets the estimator walk its pixel grid.
+        normals, curvature = estimator.estimate(points, cancel=self._cancel, shape=shape)
         if s.orient:
             normals = orient_towards_viewpoint(points, normals, s.viewpoint)
         return normals, curvature

@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ..core.conventions import METHODS, MIN_NEIGHBOURS, PCA_DEFAULT_K
+from ..core.conventions import HYBRID_GATE, METHODS, MIN_NEIGHBOURS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
 from ..core.device import validate_device_name
 
 #: Parameters whose change builds a new estimator (loading the checkpoint); the rest apply to the next cloud in place.
@@ -68,6 +68,23 @@ SPECS: tuple[ParamSpec, ...] = (
         (K_METHOD_DEFAULT, 100_000),
         f"{K_METHOD_DEFAULT} or >= {MIN_NEIGHBOURS}",
     ),
+    ParamSpec(
+        "gate",
+        float,
+        HYBRID_GATE,
+        "hybrid: the network answers where a quadric explains the neighbourhood better than PCA's plane by more than "
+        "this F statistic (about 1 on any flat surface); lower sends more points to the network.",
+        (0.0, 1e9),
+    ),
+    ParamSpec(
+        "neighbours",
+        str,
+        "auto",
+        "Neighbour search: 'kdtree'; 'grid' walks an organized cloud's pixel grid on the device (falls back to the "
+        "KD-tree for unorganized clouds); 'auto' uses the grid on a GPU and the KD-tree on a CPU.",
+        None,
+        " | ".join(NEIGHBOUR_SEARCHES),
+    ),
     ParamSpec("orient", bool, True, "Flip normals toward 'viewpoint' (PCL's flipNormalTowardsViewpoint)."),
     ParamSpec(
         "viewpoint",
@@ -93,6 +110,8 @@ class NodeSettings:
     batch_size: int = 256
     radius: float = 0.03
     k: int = K_METHOD_DEFAULT
+    gate: float = HYBRID_GATE
+    neighbours: str = "auto"
     orient: bool = True
     viewpoint: tuple[float, float, float] = (0.0, 0.0, 0.0)
     stats_period: float = 5.0
@@ -106,6 +125,8 @@ class NodeSettings:
             "checkpoint": self.checkpoint or None,
             "device": self.device,
             "batch_size": self.batch_size,
+            "gate": self.gate,
+            "neighbours": self.neighbours,
         }
 
 
@@ -133,6 +154,8 @@ def _check_value(name: str, value: Any) -> str | None:
         return f"method must be one of {', '.join(METHODS)}, got {value!r}"
     if name == "device":
         return validate_device_name(value)
+    if name == "neighbours" and value not in NEIGHBOUR_SEARCHES:
+        return f"neighbours must be one of {', '.join(NEIGHBOUR_SEARCHES)}, got {value!r}"
     if name == "k" and value != K_METHOD_DEFAULT and value < MIN_NEIGHBOURS:
         return f"k must be {K_METHOD_DEFAULT} (the method's default) or >= {MIN_NEIGHBOURS}, got {value!r}"
     if name == "radius" and not value > 0:
