@@ -89,7 +89,7 @@ def test_estimate_bad_values(tmp_path: Path, capsys, ok_xyz: Path, args: list[st
         (["ablate", "--per-cloud", "0"], "--per-cloud must be >= 1"),
         (["ablate", "--patches-per-shape", "0"], "--patches-per-shape must be >= 1"),
         (["ablate", "--device", "gpu"], "device must be"),
-        (["bench", "--learned-cpu-queries", "0"], "--learned-cpu-queries must be >= 1"),
+        (["bench", "--queries", "0"], "--queries must be >= 1"),
         (["bench", "--points", "10"], "--points must be >= "),
         (["bench", "--points", "-100000"], "--points must be >= "),
         (["bench", "--device", "cuda:-1"], "device must be"),

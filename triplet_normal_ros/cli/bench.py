@@ -6,15 +6,16 @@ from pathlib import Path
 from ..core.conventions import METHODS
 from . import args as checks
 
-DESCRIPTION = """Points/s per stage of the real inference path on a synthetic noisy torus. Prints the table; with
---out, also writes it into that markdown file. See docs/RESULTS.md."""
+DESCRIPTION = """Points/s per stage of every method on a simulated 640x480 depth frame and a noisy torus, side by
+side in one run, with the neighbour searches, plain matmul GFLOP/s and PointCloud2 conversion. Prints the tables;
+with --out, also writes them into that markdown file. See docs/RESULTS.md."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--points", type=int, default=100_000, metavar="N", help="cloud size (default 100000)")
+    p.add_argument("--points", type=int, default=100_000, metavar="N", help="torus size (default 100000)")
     p.add_argument("--device", metavar="D", help="only this device (default: cpu, plus cuda when available)")
     p.add_argument("--method", choices=METHODS, help="only this method (default: all)")
-    p.add_argument("--learned-cpu-queries", type=int, default=5000, metavar="M", help="learned on CPU times M queries")
+    p.add_argument("--queries", type=int, default=5000, metavar="M", help="query points timed per cloud (5000)")
     p.add_argument("--checkpoint", metavar="C", help="checkpoint (default: the shipped one)")
     p.add_argument("--out", type=Path, metavar="MD", help="results markdown to update (e.g. docs/RESULTS.md)")
 
@@ -23,14 +24,14 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluation import bench
 
     checks.at_least("points", args.points, bench.WARMUP_QUERIES)
-    checks.at_least("learned-cpu-queries", args.learned_cpu_queries, 1)
+    checks.at_least("queries", args.queries, 1)
     checks.device(args.device)
     checks.results_file(args.out)
     bench.run(
         n_points=args.points,
         device=args.device,
         method=args.method,
-        learned_cpu_queries=args.learned_cpu_queries,
+        queries=args.queries,
         checkpoint=args.checkpoint,
         out=args.out,
         command=checks.command_line(args.argv),

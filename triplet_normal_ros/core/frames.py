@@ -71,19 +71,20 @@ def quadric_f_statistic(local: torch.Tensor, mask: torch.Tensor, frame: torch.Te
     hybrid method's gate needs. `local` (B, P, 3) in units of the radius, `mask` (B, P), `frame` (B, 3, 3) as from
     `principal_frames`. Rows with fewer than 7 points get 0.
     """
-    weight = mask.to(local.dtype)
+    # float32 is enough: coordinates are in units of the radius (|x| <= 1) and the ridge below keeps the solve sane.
+    weight = mask.to(torch.float32)
+    local = torch.where(mask.unsqueeze(-1), local, 0.0).to(torch.float32)
     count = weight.sum(dim=1)
-    mean = (local * weight.unsqueeze(-1)).sum(dim=1) / count.clamp_min(1).unsqueeze(-1)
-    xyz = torch.einsum("bpj,bij->bpi", local - mean.unsqueeze(1), frame.to(local.dtype)) * weight.unsqueeze(-1)
+    mean = local.sum(dim=1) / count.clamp_min(1).unsqueeze(-1)
+    xyz = ((local - mean.unsqueeze(1)) @ frame.to(torch.float32).transpose(1, 2)) * weight.unsqueeze(-1)
     x, y, z = xyz.unbind(dim=-1)
     design = torch.stack((weight, x, y, x * x, x * y, y * y), dim=-1)
-    gram = design.transpose(1, 2) @ design
-    gram = gram + torch.eye(6, dtype=gram.dtype, device=gram.device) * 1e-12
+    gram = design.transpose(1, 2) @ design + torch.eye(6, device=local.device) * 1e-6
     rhs = design.transpose(1, 2) @ z.unsqueeze(-1)
-    coef = torch.linalg.solve(gram, rhs)
-    ss_quadric = (z - (design @ coef).squeeze(-1)).pow(2).sum(dim=1)
+    # The quadric's explained sum of squares is rhs' G^-1 rhs: no per-point residuals needed.
+    explained = (rhs * torch.linalg.solve(gram, rhs)).sum(dim=(1, 2))
     ss_plane = z.pow(2).sum(dim=1)
-    dof = (count - 6).clamp_min(1)
-    noise = (ss_quadric / dof).clamp_min(_RESIDUAL_FLOOR)
-    f = (ss_plane - ss_quadric).clamp_min(0) / 3 / noise
+    ss_quadric = (ss_plane - explained).clamp_min(0)
+    noise = (ss_quadric / (count - 6).clamp_min(1)).clamp_min(_RESIDUAL_FLOOR)
+    f = (ss_plane - ss_quadric) / 3 / noise
     return torch.where(count >= 7, f, 0.0)

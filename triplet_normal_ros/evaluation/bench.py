@@ -1,23 +1,53 @@
-"""`triplet-normal bench`: points/s per stage of the real inference path on a synthetic 100k-point cloud.
+"""`triplet-normal bench`: points/s per stage of the real inference path, every method side by side in one run.
 
-Stages are the estimator's own timings (neighbours = KD-tree build + ball search; patches = centre, scale,
-PCA-align, subsample; network = encoder + regressor; pca = covariance + eigh). The learned method on CPU times a
-fixed subset of queries (neighbourhoods still from the whole cloud) and extrapolates, since every query costs the
-same; the table says how many were timed.
+Two clouds: a simulated 640x480 depth frame (training.range_scans, radius 0.05 m) and a noisy 100k-point torus
+(radius 5 % of its diagonal). Every method estimates the same fixed-seed subset of query points with neighbourhoods
+from the whole cloud; points/s per stage = timed queries / seconds in that stage, and the last columns extrapolate
+to the whole cloud. Machines are noisy, so the table also gives each method's time as a ratio to PCA at k = 30
+(Open3D's usual cap) measured in the same run, next to the machine's plain matmul GFLOP/s and the network's share
+of it. The PointCloud2 conversion rows are the per-frame overhead the node adds.
 """
 
+from __future__ import annotations
+
+import itertools
 import os
 import platform
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..core.conventions import RADIUS_FRACTION, bbox_diagonal
+from ..core.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 
 NOISE_REL = 0.005
 WARMUP_QUERIES = 256
+DEPTH_RADIUS = 0.05
+#: PCA is also timed with Open3D's usual hybrid cap (KDTreeSearchParamHybrid(radius, max_nn=30)) for comparison.
+PCA_SMALL_K = 30
+STAGES = ("neighbours", "pca", "gate", "patches", "network")
+
+
+@dataclass
+class Row:
+    """One timed (cloud, method) pair."""
+
+    cloud: str
+    label: str
+    method: str
+    search: str
+    device: str
+    queries: int
+    points: int
+    wall: float
+    timings: dict[str, float] = field(default_factory=dict)
+    network_share: float = 0.0
+
+    def rate(self, stage: str) -> str:
+        t = self.timings.get(stage)
+        return f"{self.queries / t:,.0f}" if t else "-"
 
 
 def torus_cloud(n: int, seed: int = 0, major: float = 1.0, minor: float = 0.4) -> np.ndarray:
@@ -31,117 +61,184 @@ def torus_cloud(n: int, seed: int = 0, major: float = 1.0, minor: float = 0.4) -
     return points + rng.normal(scale=NOISE_REL * bbox_diagonal(points), size=points.shape)
 
 
-#: PCA is also timed with Open3D's usual hybrid cap (KDTreeSearchParamHybrid(radius, max_nn=30)) for comparison.
-PCA_SMALL_K = 30
+def contenders(checkpoint: str | None, method: str | None) -> list[tuple[str, dict]]:
+    """(label, NormalEstimator keyword arguments) of every method timed; the lite checkpoint when it ships."""
+    from ..core.checkpoint import SHIPPED
+
+    rows = [
+        (f"pca, k = {PCA_SMALL_K}", {"method": "pca", "k": PCA_SMALL_K}),
+        ("pca, k = 512 (the learned pool)", {"method": "pca", "k": 512}),
+        ("learned", {"method": "learned", "checkpoint": checkpoint}),
+        ("hybrid", {"method": "hybrid", "checkpoint": checkpoint}),
+    ]
+    if checkpoint is None and "lite" in SHIPPED:
+        rows += [
+            ("learned, lite", {"method": "learned", "checkpoint": "lite"}),
+            ("hybrid, lite", {"method": "hybrid", "checkpoint": "lite"}),
+        ]
+    return [r for r in rows if method is None or r[1]["method"] == method]
 
 
 def bench_one(
-    points: np.ndarray, method: str, device: str, queries: int, checkpoint: str | None, k: int | None = None
-) -> dict:
-    """Time one (method, device, k) on `queries` fixed-seed query points after a small warm-up call."""
+    cloud: str, points: np.ndarray, shape, radius: float, label: str, options: dict, device: str, queries: int
+) -> Row:
+    """Time one method on `queries` fixed-seed valid points after a small warm-up call."""
     from ..core.estimator import NormalEstimator
 
-    radius = RADIUS_FRACTION * bbox_diagonal(points)
-    estimator = NormalEstimator(method, radius=radius, k=k, checkpoint=checkpoint, device=device)
+    estimator = NormalEstimator(radius=radius, device=device, **options)
+    valid = np.flatnonzero(np.isfinite(points).all(axis=1))
     rng = np.random.default_rng(0)
-    estimator.estimate(points, rng.choice(len(points), WARMUP_QUERIES, replace=False))
-    query = np.sort(rng.choice(len(points), min(queries, len(points)), replace=False))
+    estimator.estimate(points, rng.choice(valid, min(WARMUP_QUERIES, len(valid)), replace=False), shape=shape)
+    query = np.sort(rng.choice(valid, min(queries, len(valid)), replace=False))
     timings: dict[str, float] = {}
     start = time.perf_counter()
-    normals, _ = estimator.estimate(points, query, timings=timings)
+    estimator.estimate(points, query, timings=timings, shape=shape)
     wall = time.perf_counter() - start
-    return {
-        "method": method,
-        "device": str(estimator.device),
-        "k": estimator.k,
-        "queries": len(query),
-        "valid": int(np.isfinite(normals).all(axis=1).sum()),
-        "wall": wall,
-        "timings": timings,
-    }
+    info = estimator.last_run
+    share = info.network_fraction if options["method"] != "pca" else 0.0
+    return Row(cloud, label, options["method"], info.search, str(estimator.device), len(query), len(valid), wall,
+               timings, share)
 
 
-def _plan(
-    n_points: int, device: str | None, method: str | None, learned_cpu_queries: int
-) -> list[tuple[str, str, int, int | None]]:
-    """(method, device, queries, k) to time: CPU, plus CUDA when torch sees it, unless `device` / `method` narrow it."""
+def neighbour_rows(points: np.ndarray, shape, device: str, queries: int) -> list[tuple[str, int, float, float]]:
+    """(search, pool, seconds per query, mean neighbours) of the KD-tree and the pixel grid on the depth frame."""
     import torch
 
-    devices = [device] if device else ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-    methods = [method] if method else ["pca", "learned"]
-    plan = []
-    for dev in devices:
-        for name in methods:
-            on_cpu = dev == "cpu" or (dev == "auto" and not torch.cuda.is_available())
-            queries = learned_cpu_queries if name == "learned" and on_cpu else n_points
-            plan.append((name, dev, min(queries, n_points), None))
-            if name == "pca":
-                plan.append((name, dev, n_points, PCA_SMALL_K))
-    return plan
+    from ..core.estimator import _GridSearch, _TreeSearch
+    from ..core.neighbours import NeighbourIndex
+    from ..core.organized import GridIndex
+
+    valid = np.flatnonzero(np.isfinite(points).all(axis=1))
+    rows = torch.from_numpy(np.sort(np.random.default_rng(0).choice(valid, min(queries, len(valid)), replace=False)))
+    dev = torch.device("cuda" if device != "cpu" and torch.cuda.is_available() else "cpu")
+    out = []
+    for pool in (PCA_SMALL_K, POOL_FACTOR * 128):
+        for name in ("kdtree", "grid"):
+            start = time.perf_counter()
+            if name == "kdtree":
+                search = _TreeSearch(NeighbourIndex(points), dev)
+            else:
+                search = _GridSearch(GridIndex(torch.from_numpy(points.astype(np.float64)).to(dev), *shape))
+            found = 0
+            for lo in range(0, len(rows), 4096):
+                found += int((search.pool(rows[lo : lo + 4096].to(dev), DEPTH_RADIUS, pool) >= 0).sum())
+            seconds = time.perf_counter() - start
+            out.append((name, pool, seconds / len(rows), found / len(rows)))
+    return out
 
 
-def markdown(results: list[dict], n_points: int, seconds_build: float, command: str) -> str:
+def matmul_gflops(size: int = 1024, repeats: int = 10) -> float:
+    """Plain float32 matmul GFLOP/s on this machine with torch's threads: the ceiling the network is compared to."""
     import torch
 
-    def rate(r: dict, stage: str) -> str:
-        t = r["timings"].get(stage)
-        return f"{r['queries'] / t:,.0f}" if t else "-"
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    a @ b
+    start = time.perf_counter()
+    for _ in range(repeats):
+        a @ b
+    return 2 * size**3 * repeats / (time.perf_counter() - start) / 1e9
 
-    rows = [
-        f"| {r['device']} | {r['method']} (k = {r['k']}) | {r['queries']:,} | {rate(r, 'neighbours')} "
-        f"| {rate(r, 'patches')} | {rate(r, 'network')} | {rate(r, 'pca')} | {r['queries'] / r['wall']:,.0f} "
-        f"| {n_points * r['wall'] / r['queries']:.1f} |"
-        for r in results
-    ]
-    cuda = "; no CUDA GPU on this machine" if not torch.cuda.is_available() else f"; {torch.cuda.get_device_name(0)}"
-    return "\n".join(
-        [
-            "## Throughput (`triplet-normal bench`)",
-            "",
-            f"Command: `{command}` · {time.strftime('%Y-%m-%d')}",
-            f"Machine: {_cpu_name()}, {os.cpu_count()} logical CPUs, torch {torch.__version__} with "
-            f"{torch.get_num_threads()} threads{cuda}.",
-            f"Cloud: {n_points:,} points on a noisy torus (sigma 0.5% of the diagonal), radius 5% of the diagonal. "
-            f"Points/s per stage = timed queries / seconds in that stage; *neighbours* includes one KD-tree build "
-            f"({seconds_build:.2f} s for the whole cloud). The last column is "
-            f"{n_points:,} × wall time / timed queries: extrapolated where fewer queries were timed.",
-            "",
-            "| device | method | timed queries | neighbours pts/s | patches pts/s | network pts/s | pca pts/s "
-            f"| total pts/s | s per {n_points:,} points |",
-            "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
-            *rows,
-        ]
-    )
+
+def network_mflop(checkpoint: str | None) -> tuple[int, float]:
+    """(k, MFLOP per patch) of the checkpoint's network, by arithmetic from its layer widths."""
+    from ..core.checkpoint import read_metadata, resolve_checkpoint
+
+    meta = read_metadata(resolve_checkpoint(checkpoint))
+    widths = [3, *meta["architecture"]["encoder"]]
+    head = [widths[-1], *meta["architecture"]["regressor"], 3]
+    per_point = sum(a * b for a, b in itertools.pairwise(widths))
+    per_patch = meta["k"] * per_point + sum(a * b for a, b in itertools.pairwise(head))
+    return meta["k"], 2 * per_patch / 1e6
 
 
 def run(
     n_points: int,
     device: str | None,
     method: str | None,
-    learned_cpu_queries: int,
+    queries: int,
     checkpoint: str | None,
     out: Path | None,
     command: str,
 ) -> None:
-    """Time every planned (method, device), print the table and, with `out`, write it as block `bench`."""
+    """Time every method on both clouds, print the tables and, with `out`, write them as block `bench`."""
     from tqdm import tqdm
 
-    from ..core.neighbours import NeighbourIndex
+    from ..training.range_scans import depth_frame
+    from .bench_pointcloud2 import conversion_rows
     from .report import update_section
 
-    plan = _plan(n_points, device, method, learned_cpu_queries)
-    points = torus_cloud(n_points)
-    start = time.perf_counter()
-    NeighbourIndex(points)
-    seconds_build = time.perf_counter() - start
-    results = [
-        bench_one(points, name, dev, queries, checkpoint, k)
-        for name, dev, queries, k in tqdm(plan, desc="bench", unit="run", disable=None, file=sys.stderr)
+    dev = device or "cpu"
+    frame = depth_frame(0)
+    torus = torus_cloud(n_points)
+    clouds = [
+        ("depth frame 640x480", frame.points.reshape(-1, 3).astype(np.float64), frame.points.shape[:2], DEPTH_RADIUS),
+        (f"torus {n_points:,}", torus, None, RADIUS_FRACTION * bbox_diagonal(torus)),
     ]
-    text = markdown(results, n_points, seconds_build, command)
+    jobs = [(c, label, opts) for c in clouds for label, opts in contenders(checkpoint, method)]
+    rows = [
+        bench_one(c[0], c[1], c[2], c[3], label, opts, dev, queries)
+        for c, label, opts in tqdm(jobs, desc="bench", unit="run", disable=None, file=sys.stderr)
+    ]
+    searches = neighbour_rows(clouds[0][1], clouds[0][2], dev, min(queries, 20_000))
+    gflops = matmul_gflops()
+    conversions = conversion_rows()
+    text = markdown(rows, searches, gflops, network_mflop(checkpoint), conversions, command)
     print(text)
     if out is not None:
         update_section(out, "bench", text)
+
+
+def markdown(rows, searches, gflops, net, conversions, command: str) -> str:
+    import torch
+
+    from .bench_pointcloud2 import conversion_markdown
+
+    k, mflop = net
+    cuda = "; no CUDA GPU on this machine" if not torch.cuda.is_available() else f"; {torch.cuda.get_device_name(0)}"
+    learned = [r for r in rows if r.label == "learned" and r.timings.get("network")]  # the shipped checkpoint
+    share = (
+        f"The shipped network (k = {k}, {mflop:.1f} MFLOP per patch) runs at "
+        f"{learned[0].queries / learned[0].timings['network']:,.0f} patches/s on the {learned[0].cloud}, i.e. "
+        f"{learned[0].queries / learned[0].timings['network'] * mflop / 1e3 / gflops:.0%} of plain matmul."
+        if learned
+        else ""
+    )
+    lines = [
+        "## Throughput (`triplet-normal bench`)",
+        "",
+        f"Command: `{command}` · {time.strftime('%Y-%m-%d')}",
+        f"Machine: {_cpu_name()}, {os.cpu_count()} logical CPUs, torch {torch.__version__} with "
+        f"{torch.get_num_threads()} threads{cuda}; plain float32 matmul {gflops:.0f} GFLOP/s in this run. {share}",
+        "Every method times the same fixed-seed query subset with neighbourhoods from the whole cloud; *neighbours* "
+        "includes building the search once per cloud; *s per cloud* extrapolates the wall time to every valid point; "
+        "*× PCA-30* is that time over PCA at k = 30 on the same cloud in this run.",
+        "",
+        "| cloud | method | search | timed | neighbours pts/s | pca | gate | patches | network | network share "
+        "| total pts/s | s per cloud | × PCA-30 |",
+        "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for r in rows:
+        base = next(b for b in rows if b.cloud == r.cloud and b.label.startswith(f"pca, k = {PCA_SMALL_K}"))
+        per_cloud = r.points * r.wall / r.queries
+        share_text = f"{r.network_share:.0%}" if r.method != "pca" else "-"
+        lines.append(
+            f"| {r.cloud} | {r.label} | {r.search} | {r.queries:,} | "
+            + " | ".join(r.rate(s) for s in STAGES)
+            + f" | {share_text} | {r.queries / r.wall:,.0f} | {per_cloud:.1f} | {r.wall / base.wall:.1f} |"
+        )
+    lines += [
+        "",
+        "Neighbour search alone on the depth frame (radius 0.05 m), KD-tree against the organized pixel grid:",
+        "",
+        "| search | pool | µs per query | neighbours per query |",
+        "| --- | ---: | ---: | ---: |",
+        *(f"| {name} | {pool} | {sec * 1e6:.1f} | {found:.0f} |" for name, pool, sec, found in searches),
+        "",
+        "PointCloud2 conversion of a full 640x480 frame (median of 15; the node's per-frame overhead):",
+        "",
+        *conversion_markdown(conversions),
+    ]
+    return "\n".join(lines)
 
 
 def _cpu_name() -> str:

@@ -1,14 +1,11 @@
 """Time PointCloud2 <-> numpy conversion (read_xyz + with_normals) on a 640x480 organized cloud.
 
-Run: ``python -m triplet_normal_ros.evaluation.bench_pointcloud2 [--repeats N]``. Prints a Markdown table of
-medians. The
-target is <= 30 ms for read + write of the plain xyzrgb case, the per-frame overhead the node adds to estimation.
+`triplet-normal bench` prints these rows beside the estimator's (the node's per-frame overhead next to the work).
+The target is <= 30 ms for read + write of the plain xyzrgb case.
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from collections.abc import Callable
 
@@ -59,22 +56,23 @@ def _median_ms(fn: Callable[[], object], repeats: int) -> float:
     return 1e3 * float(np.median(times))
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=15, help="timed repeats per case (median reported)")
-    args = parser.parse_args(argv)
-    print(f"`{' '.join([sys.executable, '-m', 'triplet_normal_ros.evaluation.bench_pointcloud2', *sys.argv[1:]])}`\n")
-    print("| case | points | read ms | write ms | total ms |\n| --- | ---: | ---: | ---: | ---: |")
+def conversion_rows(repeats: int = 15) -> list[tuple[str, float, float]]:
+    """(case, read ms, write ms): medians of `repeats` timed runs per layout, after one warm-up."""
     rng = np.random.default_rng(1)
     normals = rng.standard_normal((HEIGHT * WIDTH, 3)).astype(np.float32)
     curvature = rng.random(HEIGHT * WIDTH).astype(np.float32)
+    rows = []
     for name, build in CASES.items():
         msg = build()
         read_xyz(msg), with_normals(msg, normals, curvature)  # warm-up
-        read_ms = _median_ms(lambda m=msg: read_xyz(m), args.repeats)
-        write_ms = _median_ms(lambda m=msg: with_normals(m, normals, curvature), args.repeats)
-        print(f"| {name} | {HEIGHT * WIDTH} | {read_ms:.1f} | {write_ms:.1f} | {read_ms + write_ms:.1f} |")
+        read_ms = _median_ms(lambda m=msg: read_xyz(m), repeats)
+        write_ms = _median_ms(lambda m=msg: with_normals(m, normals, curvature), repeats)
+        rows.append((name, read_ms, write_ms))
+    return rows
 
 
-if __name__ == "__main__":
-    main()
+def conversion_markdown(rows: list[tuple[str, float, float]]) -> list[str]:
+    """The conversion table: the per-frame overhead the node adds to estimation."""
+    lines = ["| case | points | read ms | write ms | total ms |", "| --- | ---: | ---: | ---: | ---: |"]
+    lines += [f"| {n} | {HEIGHT * WIDTH} | {r:.1f} | {w:.1f} | {r + w:.1f} |" for n, r, w in rows]
+    return lines

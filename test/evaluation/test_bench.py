@@ -1,0 +1,32 @@
+"""`triplet-normal bench` end to end on a small budget: every table it promises, with numbers that make sense."""
+
+import re
+from pathlib import Path
+
+import pytest
+
+from triplet_normal_ros.cli.main import main
+from triplet_normal_ros.evaluation.report import read_section
+
+pytestmark = pytest.mark.slow
+
+
+def test_bench_writes_methods_side_by_side_searches_matmul_and_conversion(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "RESULTS.md"
+    assert main(["bench", "--points", "3000", "--queries", "300", "--method", "pca", "--out", str(out)]) == 0
+    block = read_section(out, "bench")
+    assert block is not None and block.strip() in capsys.readouterr().out
+    rows = [line for line in block.splitlines() if line.startswith("| depth frame") or line.startswith("| torus")]
+    assert len(rows) == 4  # two PCA rows on each cloud
+    for row in rows:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[2] == "kdtree" and cells[3] == "300"
+        assert float(cells[-1]) > 0 and float(cells[-2]) > 0
+        if "k = 30" in cells[1]:
+            assert cells[-1] == "1.0"  # every ratio is against this row, measured in the same run
+    gflops = re.search(r"plain float32 matmul (\d+) GFLOP/s", block)
+    assert gflops and int(gflops[1]) > 1
+    searches = re.findall(r"^\| (kdtree|grid) \| (\d+) \| [\d.]+ \| (\d+) \|$", block, re.M)
+    assert {(s, p) for s, p, _ in searches} == {("kdtree", "30"), ("grid", "30"), ("kdtree", "512"), ("grid", "512")}
+    assert all(int(found) > 3 for _, _, found in searches)
+    assert "| organized 640x480 xyzrgb | 307200 |" in block
