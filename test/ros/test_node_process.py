@@ -235,7 +235,7 @@ def test_malformed_clouds_are_skipped_and_the_node_keeps_serving(
 
 
 def _total_rejected(node: NodeProcess) -> int:
-    totals = re.findall(r"total: \d+ clouds, \d+ dropped, (\d+) rejected", node.log)
+    totals = re.findall(r"total: \d+ arrived, \d+ clouds, \d+ dropped, (\d+) rejected", node.log)
     return int(totals[-1]) if totals else 0
 
 
@@ -300,6 +300,7 @@ def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, insta
         out = c.request_resending(small_cloud(c, frame), timeout=60, every=5.0)
         assert out is not None
         assert np.isfinite(normals_of(out)).all(axis=1).sum() > 300
+    assert node.log.count("first cloud received:") == 1  # announced once, however often it was resent
     code, seconds = node.stop(signal.SIGTERM)
     assert code == 0 and seconds < SHUTDOWN_S, (code, seconds, node.log[-2000:])
     assert "Traceback" not in node.log

@@ -111,7 +111,7 @@ class TripletNormalNode(Node):
         self._subscription = self.create_subscription(
             PointCloud2,
             "input",
-            self._mailbox.put,
+            self._on_cloud,
             qos_profile_sensor_data,
             qos_overriding_options=QoSOverridingOptions.with_default_policies(),
             callback_group=MutuallyExclusiveCallbackGroup(),
@@ -197,9 +197,19 @@ class TripletNormalNode(Node):
             except Exception as error:  # the worker must outlive any one cloud; shutdown races end here too
                 if self._cancel.is_set():
                     return
+                self._stats.reject()
                 log.error(f"failed on a cloud: {type(error).__name__}: {error}", throttle_duration_sec=THROTTLE_S)
 
+    def _on_cloud(self, msg: PointCloud2) -> None:
+        """Subscription callback: count the arrival (log the first one), leave the cloud for the worker."""
+        if self._stats.arrive():
+            self.get_logger().info(
+                f"first cloud received: {msg.width}x{msg.height} in frame '{msg.header.frame_id}'; estimating"
+            )
+        self._mailbox.put(msg)
+
     def _process(self, msg: PointCloud2) -> None:
+        self._stats.start()
         start = time.perf_counter()
         estimator, settings = self._active
         if msg.height * msg.width == 0:
