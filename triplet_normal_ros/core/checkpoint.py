@@ -24,7 +24,7 @@ def default_checkpoint_path() -> Path:
 
 
 #: Checkpoints shipped as package data, selectable by name wherever a path is accepted.
-SHIPPED = ("default",)
+SHIPPED = ("default", "lite")
 
 
 def shipped_checkpoint_path(name: str) -> Path:

@@ -80,6 +80,18 @@ RECIPES = {
         regressor_patches_per_shape=3000,
         val_patches_per_cloud=300,
     ),
+    # The lite checkpoint: the cpu recipe on half the patch (k = 64) and a 256-wide latent, about 6.5x fewer
+    # multiply-adds per patch than the default (docs/MODEL.md). Phase (b) is cheap at this width, so it gets 30 epochs.
+    "lite": Recipe(
+        residual=True,
+        loss="relative",
+        k=64,
+        encoder=[64, 64, 128, 256],
+        regressor=[128, 64],
+        regressor_epochs=30,
+        regressor_patches_per_shape=3000,
+        val_patches_per_cloud=300,
+    ),
 }
 
 
