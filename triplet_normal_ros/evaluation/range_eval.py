@@ -42,10 +42,13 @@ class MethodScore:
 
 
 def contenders(checkpoint: str | None, device: str, k: int | None = None) -> dict[str, NormalEstimator]:
-    """PCA at the k = 30 cap (Open3D's usual), PCA over the learned method's pool, learned, and hybrid."""
+    """PCA at the k = 30 cap (Open3D's usual), PCA over the learned method's pool, learned, and hybrid; with the
+    shipped default, also the lite checkpoint learned and hybrid."""
+    from ..core.checkpoint import SHIPPED
+
     learned = NormalEstimator("learned", radius=DEPTH_RADIUS, checkpoint=checkpoint, device=device, k=k)
     hybrid = NormalEstimator("hybrid", radius=DEPTH_RADIUS, checkpoint=checkpoint, device=device, k=k)
-    return {
+    rows = {
         "PCA, k = 30": NormalEstimator("pca", radius=DEPTH_RADIUS, k=30, device=device),
         f"PCA, k = {POOL_FACTOR * learned.k} (the learned pool)": NormalEstimator(
             "pca", radius=DEPTH_RADIUS, k=POOL_FACTOR * learned.k, device=device
@@ -53,6 +56,10 @@ def contenders(checkpoint: str | None, device: str, k: int | None = None) -> dic
         "learned": learned,
         f"hybrid (gate {hybrid.gate:g})": hybrid,
     }
+    if checkpoint is None and "lite" in SHIPPED:
+        rows["learned, lite"] = NormalEstimator("learned", radius=DEPTH_RADIUS, checkpoint="lite", device=device)
+        rows["hybrid, lite"] = NormalEstimator("hybrid", radius=DEPTH_RADIUS, checkpoint="lite", device=device)
+    return rows
 
 
 def evaluate_depth_frames(estimators: dict[str, NormalEstimator], quick: bool) -> tuple[list[MethodScore], dict]:
@@ -86,7 +93,7 @@ def evaluate_depth_frames(estimators: dict[str, NormalEstimator], quick: bool) -
 
 def depth_markdown(scores: list[MethodScore], summary: dict, header: str) -> str:
     """The depth-frame table, each method as MSAE and as a ratio to full-ball PCA and to learned."""
-    reference = next(s for s in scores if s.name.startswith("PCA, k = ") and "pool" in s.name)
+    reference = next(s for s in scores if "learned pool" in s.name)
     learned = next(s for s in scores if s.name == "learned")
     rows = []
     for s in scores:
