@@ -63,7 +63,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--neighbours",
         choices=NEIGHBOUR_SEARCHES,
         default="auto",
-        help="kdtree, grid (organized clouds: the pixel grid), or auto (grid on a GPU; default)",
+        help="kdtree, grid (organized clouds: the pixel grid), voxel (the KD-tree's neighbours from cell lists on the "
+        "device), or auto (on a GPU grid for organized clouds, else voxel; on a CPU kdtree; default)",
     )
 
 

@@ -18,8 +18,9 @@ MIN_NEIGHBOURS = 3
 #: Hybrid sends a point to the network when a quadric explains its neighbourhood better than the PCA plane by more than
 #: this F statistic (about 1 on a flat surface at any noise level; chosen in docs/RESULTS.md).
 HYBRID_GATE = 10.0
-#: Neighbour searches: 'kdtree', 'grid' (organized clouds only; falls back to the KD-tree), 'auto' (grid on CUDA).
-NEIGHBOUR_SEARCHES = ("auto", "kdtree", "grid")
+#: Neighbour searches: 'kdtree' (CPU), 'grid' (organized clouds only; falls back to the KD-tree), 'voxel' (sorted cell
+#: lists on the device, any cloud), 'auto' (on CUDA the grid for organized clouds, else voxel; the KD-tree on a CPU).
+NEIGHBOUR_SEARCHES = ("auto", "kdtree", "grid", "voxel")
 #: PCA's neighbour cap when no k is given: large enough to be the whole ball for typical depth-camera radii.
 PCA_DEFAULT_K = 500
 

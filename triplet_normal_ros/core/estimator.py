@@ -1,8 +1,9 @@
 """NormalEstimator: the one entry point that the node, the CLI, evaluation and the tests call.
 
-`estimate` builds a neighbour search once per cloud (the pixel grid of an organized cloud, on the device, else a
-KD-tree), then walks the query points in chunks: ball neighbourhoods, then PCA, patches + network, or both (hybrid:
-the network only where PCA's neighbourhood is not flat). Memory stays bounded by the chunk size.
+`estimate` builds a neighbour search once per cloud (the pixel grid of an organized cloud or sorted cell lists, both on
+the device, or a KD-tree on the CPU), then walks the query points in chunks: ball neighbourhoods, then PCA, patches +
+network, or both (hybrid: the network only where PCA's neighbourhood is not flat). Memory stays bounded by the chunk
+size.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from .frames import masked_covariance, principal_frames, quadric_f_statistic, su
 from .neighbours import NeighbourIndex
 from .organized import GridIndex
 from .patches import build_patches, to_world
+from .voxels import VoxelIndex
 
 #: Query points per neighbour-search chunk; bounds the (chunk, pool) index block and the cancel latency.
 CHUNK = 4096
@@ -35,7 +37,7 @@ PCA_CHUNK = 16384
 class RunInfo:
     """What the last `estimate` call did: which neighbour search, and how many points the network saw."""
 
-    search: str = "none"  # "grid" (organized pixel grid) | "kdtree" | "none"
+    search: str = "none"  # "grid" (organized pixel grid) | "voxel" (cell lists) | "kdtree" | "none"
     estimated: int = 0  # finite query points
     network: int = 0  # of those, how many went through the network (all for learned, the gated ones for hybrid)
 
@@ -177,18 +179,23 @@ class NormalEstimator:
         return normals, curvature
 
     def _search(self, points: np.ndarray, cloud: torch.Tensor, shape: tuple[int, int] | None) -> _Search:
-        """The pixel grid when asked for (or, with 'auto', on a GPU) and the cloud is organized and looks like a
-        sensor-frame range image; else the KD-tree. On a CPU the cKDTree is the faster of the two (docs/RESULTS.md),
-        on a GPU the grid keeps the whole estimate on the device."""
-        wanted = self.neighbours == "grid" or (self.neighbours == "auto" and self.device.type == "cuda")
-        if wanted and shape is not None and shape[0] > 1 and shape[0] * shape[1] == len(points):
+        """'voxel': the cell lists. 'grid': the pixel grid when the cloud is organized and looks like a sensor-frame
+        range image, else the KD-tree. 'kdtree': the KD-tree. 'auto' on a GPU keeps the whole estimate on the device:
+        the grid where it applies, else the cell lists; 'auto' on a CPU is the KD-tree, the fastest there
+        (docs/RESULTS.md)."""
+        on_gpu = self.neighbours == "auto" and self.device.type == "cuda"
+        organized = shape is not None and shape[0] > 1 and shape[0] * shape[1] == len(points)
+        if (self.neighbours == "grid" or on_gpu) and organized:
             grid = GridIndex(cloud, *shape)
             if grid.usable:
                 return _GridSearch(grid)
+        if self.neighbours == "voxel" or on_gpu:
+            return _VoxelSearch(VoxelIndex(cloud))
         return _TreeSearch(NeighbourIndex(points), self.device)
 
     def _pool_size(self, search: _Search) -> int:
-        """PCA keeps k neighbours. The network sees k points drawn from a pool: on the KD-tree the nearest
+        """PCA keeps k neighbours. The network sees k points drawn from a pool: on the KD-tree and the cell lists the
+        nearest
         POOL_FACTOR × k, on the pixel grid a uniform sample of the whole ball, for which about k suffice."""
         return self.k if self.method == "pca" else POOL_FACTOR * self.k
 
@@ -268,16 +275,26 @@ class _TreeSearch(_Search):
         return torch.from_numpy(idx).to(self.device)
 
 
-class _GridSearch(_Search):
+class _DeviceSearch(_Search):
+    """An index on the estimator's device whose `ball(rows, radius, size)` is the pool: no per-chunk host round trip."""
+
+    def __init__(self, index: GridIndex | VoxelIndex) -> None:
+        self.index, self.finite = index, index.finite.cpu().numpy()
+
+    def pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
+        return self.index.ball(rows, radius, size)
+
+
+class _VoxelSearch(_DeviceSearch):
+    """The nearest `size` points inside the ball, exactly the KD-tree's, from sorted cell lists (see voxels.py)."""
+
+    name = "voxel"
+
+
+class _GridSearch(_DeviceSearch):
     """A uniform sample of the ball through the pixel grid, on the device (see organized.py)."""
 
     name = "grid"
-
-    def __init__(self, grid: GridIndex) -> None:
-        self.grid, self.finite = grid, grid.finite.cpu().numpy()
-
-    def pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
-        return self.grid.ball(rows, radius, size)
 
 
 def _finish(normals: torch.Tensor, curvature: torch.Tensor, valid: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:

@@ -82,7 +82,8 @@ SPECS: tuple[ParamSpec, ...] = (
         str,
         "auto",
         "Neighbour search: 'kdtree'; 'grid' walks an organized cloud's pixel grid on the device (falls back to the "
-        "KD-tree for unorganized clouds); 'auto' uses the grid on a GPU and the KD-tree on a CPU.",
+        "KD-tree for unorganized clouds); 'voxel' finds the KD-tree's neighbours from sorted cell lists on the device; "
+        "'auto' uses the grid (organized) or voxel (unorganized) on a GPU and the KD-tree on a CPU.",
         None,
         " | ".join(NEIGHBOUR_SEARCHES),
     ),
