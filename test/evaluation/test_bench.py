@@ -26,7 +26,7 @@ def test_bench_writes_methods_side_by_side_searches_matmul_and_conversion(tmp_pa
             assert cells[-1] == "1.0"  # every ratio is against this row, measured in the same run
     gflops = re.search(r"plain float32 matmul (\d+) GFLOP/s", block)
     assert gflops and int(gflops[1]) > 1
-    searches = re.findall(r"^\| (kdtree|grid) \| (\d+) \| [\d.]+ \| (\d+) \|$", block, re.M)
-    assert {(s, p) for s, p, _ in searches} == {("kdtree", "30"), ("grid", "30"), ("kdtree", "512"), ("grid", "512")}
+    searches = re.findall(r"^\| (kdtree|grid|voxel) \| (\d+) \| [\d.]+ \| (\d+) \|$", block, re.M)
+    assert {(s, p) for s, p, _ in searches} == {(s, p) for s in ("kdtree", "grid", "voxel") for p in ("30", "512")}
     assert all(int(found) > 3 for _, _, found in searches)
     assert "| organized 640x480 xyzrgb | 307200 |" in block

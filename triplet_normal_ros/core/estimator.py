@@ -172,7 +172,7 @@ class NormalEstimator:
             out = todo[lo : lo + chunk]
             rows = torch.from_numpy(query[out]).to(self.device)
             with _timed(timings, "neighbours"):
-                pool = search.pool(rows, self.radius, self._pool_size(search))
+                pool = search.pool(rows, self.radius, self._pool_size())
             normals[out], curvature[out] = run(cloud, cloud[rows], pool, rows, cancel, timings)
             if progress is not None:
                 progress(len(out))
@@ -193,10 +193,9 @@ class NormalEstimator:
             return _VoxelSearch(VoxelIndex(cloud))
         return _TreeSearch(NeighbourIndex(points), self.device)
 
-    def _pool_size(self, search: _Search) -> int:
-        """PCA keeps k neighbours. The network sees k points drawn from a pool: on the KD-tree and the cell lists the
-        nearest
-        POOL_FACTOR × k, on the pixel grid a uniform sample of the whole ball, for which about k suffice."""
+    def _pool_size(self) -> int:
+        """PCA keeps k neighbours; the network sees k points drawn from a pool of POOL_FACTOR × k (the nearest, on the
+        KD-tree and the cell lists; a uniform sample of the ball of about that size, on the pixel grid)."""
         return self.k if self.method == "pca" else POOL_FACTOR * self.k
 
     def _pca_chunk(self, cloud, centres, pool, _rows, _cancel, timings) -> tuple[np.ndarray, np.ndarray]:
