@@ -285,14 +285,14 @@ def test_sigint_during_an_estimate_exits_cleanly(start_node, frame: Frame) -> No
 
 
 def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, install_prefix: Path, frame: Frame) -> None:
-    """The README's route: the installed config/params.yaml (learned, default checkpoint), best-effort input.
+    """The README's route: the installed config/params.yaml (hybrid, default checkpoint), best-effort input.
 
     A small cloud gets through (resent while unanswered: best effort may lose it), then SIGTERM ends the node cleanly.
     """
     shipped = install_prefix / "share" / PACKAGE / "config" / "params.yaml"
     node = start_node(shipped, {"input": "/tn_term/in", "output": "/tn_term/out"})
     assert node.wait_for_log("ready:", 60), node.log
-    assert "method=learned, checkpoint=default" in node.log
+    assert "method=hybrid, checkpoint=default" in node.log  # the node's default method
     rate = re.search(r"expected throughput on cpu: about ([\d,]+) points/s \(~([\d.]+) s for a full 640x480", node.log)
     assert rate and int(rate[1].replace(",", "")) > 100, node.log  # logged before the first cloud, on its device
     with ProbeClient("/tn_term/in", "/tn_term/out") as c:

@@ -113,7 +113,7 @@ def test_apply_converts_types_and_keeps_the_rest() -> None:
     s = apply(NodeSettings(), {"radius": 1, "viewpoint": [1, 2, 3], "use_sim_time": True})
     assert s.radius == 1.0 and isinstance(s.radius, float)
     assert s.viewpoint == (1.0, 2.0, 3.0)
-    assert s.method == "learned" and s.k == K_METHOD_DEFAULT
+    assert s.method == "hybrid" and s.k == K_METHOD_DEFAULT
 
 
 def test_only_method_checkpoint_and_device_need_a_reload() -> None:

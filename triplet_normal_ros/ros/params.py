@@ -38,7 +38,7 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "method",
         str,
-        "learned",
+        "hybrid",
         "Normal estimator: 'learned' (triplet network), 'pca', or 'hybrid' (PCA; the network where not flat).",
         None,
         "learned | pca | hybrid",
@@ -106,7 +106,7 @@ SPEC_BY_NAME: dict[str, ParamSpec] = {s.name: s for s in SPECS}
 class NodeSettings:
     """A validated snapshot of every parameter; the worker reads one snapshot per cloud, so updates never tear."""
 
-    method: str = "learned"
+    method: str = "hybrid"
     checkpoint: str = ""
     device: str = "auto"
     batch_size: int = 256
