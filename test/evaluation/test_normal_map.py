@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from triplet_normal_ros.evaluation.normal_map import normals_to_rgb, side_by_side, stack_rows, upscale, write_png
+from triplet_normal_ros.evaluation.normal_map import normals_to_rgb, write_png
+from triplet_normal_ros.evaluation.plots import labelled_panels
 
 
 def test_facing_the_camera_is_blue_and_holes_are_black() -> None:
@@ -28,13 +29,19 @@ def test_png_round_trips_through_a_real_decoder(tmp_path: Path) -> None:
     np.testing.assert_array_equal((decoded[..., :3] * 255).round().astype(np.uint8), image)
 
 
-def test_layout_helpers() -> None:
-    a, b = np.zeros((2, 3, 3), np.uint8), np.zeros((2, 4, 3), np.uint8)
-    row = side_by_side([a, b], gap=1)
-    assert row.shape == (2, 8, 3) and (row[:, 3] == 255).all()
-    assert stack_rows([row, row], gap=2).shape == (6, 8, 3)
-    assert upscale(a, 4).shape == (8, 12, 3)
-    with pytest.raises(ValueError, match="height"):
-        side_by_side([a, np.zeros((3, 3, 3), np.uint8)])
+def test_labelled_panels_draw_every_panel_in_a_grid(tmp_path: Path) -> None:
+    red, blue = np.zeros((48, 64, 3), np.uint8), np.zeros((48, 64, 3), np.uint8)
+    red[..., 0], blue[..., 2] = 255, 255
+    path = labelled_panels(tmp_path / "p.png", [[("a", red), ("b", blue)], [("c", blue), ("d", red)]], "title")
+    image = imread(path)[..., :3]
+    height, width = image.shape[:2]
+    assert width > height  # two columns of 4:3 panels plus titles
+    quadrant = lambda r, c: image[r * height // 2 : (r + 1) * height // 2, c * width // 2 : (c + 1) * width // 2]  # noqa: E731
+    for (r, c), channel in {(0, 0): 0, (0, 1): 2, (1, 0): 2, (1, 1): 0}.items():
+        pure = (quadrant(r, c)[..., channel] > 0.9) & (quadrant(r, c).sum(axis=-1) < 1.1)
+        assert pure.mean() > 0.3  # each panel's colour fills its own cell of the grid
+
+
+def test_write_png_refuses_non_uint8_images() -> None:
     with pytest.raises(ValueError, match="uint8"):
         write_png(Path("/nonexistent/never.png"), np.zeros((2, 2)))

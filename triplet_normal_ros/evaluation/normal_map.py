@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import struct
 import zlib
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -23,35 +22,6 @@ def normals_to_rgb(normals: np.ndarray) -> np.ndarray:
     rgb = np.clip((view + 1.0) * 127.5, 0, 255)
     rgb[~np.isfinite(view).all(axis=-1)] = 0
     return np.nan_to_num(rgb).astype(np.uint8)
-
-
-def upscale(image: np.ndarray, factor: int) -> np.ndarray:
-    """Nearest-neighbour enlargement, so a decimated frame lines up with the full-resolution image."""
-    return np.repeat(np.repeat(image, factor, axis=0), factor, axis=1)
-
-
-def side_by_side(panels: Sequence[np.ndarray], gap: int = 8) -> np.ndarray:
-    """Panels of equal height joined left to right with a white gap."""
-    heights = {p.shape[0] for p in panels}
-    if len(heights) != 1:
-        raise ValueError(f"panels must share a height, got {sorted(heights)}")
-    spacer = np.full((heights.pop(), gap, 3), 255, np.uint8)
-    parts: list[np.ndarray] = []
-    for panel in panels:
-        parts += [spacer, panel] if parts else [panel]
-    return np.concatenate(parts, axis=1)
-
-
-def stack_rows(rows: Sequence[np.ndarray], gap: int = 8) -> np.ndarray:
-    """Images of equal width stacked top to bottom with a white gap (one row of panels per frame)."""
-    widths = {r.shape[1] for r in rows}
-    if len(widths) != 1:
-        raise ValueError(f"rows must share a width, got {sorted(widths)}")
-    spacer = np.full((gap, widths.pop(), 3), 255, np.uint8)
-    parts: list[np.ndarray] = []
-    for row in rows:
-        parts += [spacer, row] if parts else [row]
-    return np.concatenate(parts, axis=0)
 
 
 def _chunk(kind: bytes, payload: bytes) -> bytes:

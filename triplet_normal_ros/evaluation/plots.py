@@ -65,3 +65,31 @@ def _equal_axes(ax, points: np.ndarray) -> None:
         ax.set_ylim(centre[1] - half, centre[1] + half)
         ax.set_zlim(centre[2] - half, centre[2] + half)
     ax.set_box_aspect((1, 1, 1))
+
+
+def labelled_panels(path: str | Path, rows: list[list[tuple[str, np.ndarray]]], title: str = "") -> Path:
+    """A grid of (label, RGB image) panels, one row per frame, every panel titled: which method, which radius.
+
+    Pictures that compare methods must say what each panel is; a bare side-by-side invites the wrong comparison.
+    """
+    plt = _pyplot()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    n_rows, n_cols = len(rows), max(len(r) for r in rows)
+    height, width = rows[0][0][1].shape[:2]
+    scale = 4.2 / width * 100
+    fig, axes = plt.subplots(
+        n_rows, n_cols, figsize=(n_cols * width * scale / 100, n_rows * (height * scale / 100 + 0.35)), squeeze=False
+    )
+    for ax_row, row in zip(axes, rows, strict=True):
+        for ax, (label, image) in zip(ax_row, row, strict=False):
+            ax.imshow(image)
+            ax.set_title(label, fontsize=9)
+        for ax in ax_row:
+            ax.axis("off")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

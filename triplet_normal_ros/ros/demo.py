@@ -1,9 +1,10 @@
 """``make demo``: run the colcon-installed node, replay the shipped Kinect frames through it, draw the result.
 
-This process is the "camera": it starts the node as a separate process, publishes each frame, waits for the answer
-and measures the round trip. The learned method runs on frames decimated to every ``--step``-th row and column,
-because the network manages only a few thousand points per second on a small CPU; PCA then runs on the full frames
-after a run-time parameter change. Pictures go to ``out/normal_map.png`` and ``out/side_by_side.png``.
+This process is the "camera": it starts the node as a separate process, publishes each full 640x480 frame, waits
+for the answer and measures the round trip. The node first runs its default, ``hybrid`` (PCA everywhere, the network
+near edges: the learned accuracy at a quarter of its cost), then, after a run-time parameter change, PCA over the
+same 512-point pool of the same 5 cm ball. Pictures go to ``out/normal_map.png`` and ``out/side_by_side.png``
+(labelled panels: camera image, hybrid, PCA, same frames, same radius).
 """
 
 from __future__ import annotations
@@ -20,13 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ..evaluation.normal_map import normals_to_rgb, side_by_side, stack_rows, upscale, write_png
+from ..evaluation.normal_map import normals_to_rgb, write_png
 from ..io.pointcloud2 import NORMAL_FIELDS, read_field
 from .replay import FRAMES, Frame, ReplayClient, load_frame
 
 INPUT, OUTPUT = "/demo/camera/depth/points", "/demo/camera/depth/normals"
-LEARNED = {"method": "learned", "radius": 0.05}
-PCA = {"method": "pca", "radius": 0.03, "k": 32}
+RADIUS = 0.05
+#: The node's defaults (hybrid, the default checkpoint) at a depth camera's usual radius.
+HYBRID = {"method": "hybrid", "radius": RADIUS}
+#: PCA over exactly the pool hybrid's own PCA uses (POOL_FACTOR × the checkpoint's k = 512 nearest in the ball), so the
+#: two pictures differ only where the network answered.
+PCA = {"method": "pca", "radius": RADIUS, "k": 512}
 
 
 @dataclass(frozen=True)
@@ -75,7 +80,7 @@ def _start_node(prefix: Path, out: Path, env: dict[str, str]) -> subprocess.Pope
     executable = prefix / "lib" / "triplet_normal_ros" / "node"
     if not executable.is_file():
         raise SystemExit(f"demo: no installed node at {executable}; run colcon build first (make demo does)")
-    params = _params_file(out / "demo_params.yaml", {**LEARNED, "stats_period": 30.0})
+    params = _params_file(out / "demo_params.yaml", {**HYBRID, "stats_period": 30.0})
     args = [str(executable), "--ros-args", "--params-file", str(params), "-r", f"input:={INPUT}"]
     args += ["-r", f"output:={OUTPUT}"]
     log = (out / "node.log").open("w")
@@ -106,15 +111,21 @@ def _replay(client: ReplayClient, frames: list[Frame], method: str) -> list[Resu
     return results
 
 
-def _pictures(out: Path, learned: list[Result], pca: list[Result], step: int) -> tuple[Path, Path]:
-    """normal_map.png: learned normals of the first frame; side_by_side.png: per frame, RGB | learned | PCA."""
-    learned_rgb = [upscale(normals_to_rgb(r.normals), step) for r in learned]
-    normal_map = write_png(out / "normal_map.png", learned_rgb[0])
+def _pictures(out: Path, hybrid: list[Result], pca: list[Result]) -> tuple[Path, Path]:
+    """normal_map.png: hybrid normals of the first frame; side_by_side.png: per frame, camera | hybrid | PCA."""
+    from ..evaluation.plots import labelled_panels
+
+    normal_map = write_png(out / "normal_map.png", normals_to_rgb(hybrid[0].normals))
     rows = [
-        side_by_side([p.frame.rgb_image(), lr, normals_to_rgb(p.normals)])
-        for lr, p in zip(learned_rgb, pca, strict=True)
+        [
+            (f"{h.frame.name}: camera image", h.frame.rgb_image()),
+            (f"hybrid, r = {RADIUS * 100:g} cm, {h.latency_s:.1f} s", normals_to_rgb(h.normals)),
+            (f"PCA, r = {RADIUS * 100:g} cm, same 512-point pool, {p.latency_s:.1f} s", normals_to_rgb(p.normals)),
+        ]
+        for h, p in zip(hybrid, pca, strict=True)
     ]
-    return normal_map, write_png(out / "side_by_side.png", stack_rows(rows))
+    title = "Full 640x480 Kinect frames through the node; colour = normal (red right, green up, blue to the camera)"
+    return normal_map, labelled_panels(out / "side_by_side.png", rows, title)
 
 
 def _summary(results: list[Result]) -> None:
@@ -126,7 +137,7 @@ def _summary(results: list[Result]) -> None:
         print(f"  {method:<8} {len(rs)} frames, mean latency {latency * 1e3:.0f} ms, {rate:.0f} normals/s end to end")
 
 
-def run(prefix: Path, out: Path, step: int, names: list[str]) -> int:
+def run(prefix: Path, out: Path, names: list[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     frames = [load_frame(n) for n in names]
     env = _node_env(prefix)
@@ -135,15 +146,15 @@ def run(prefix: Path, out: Path, step: int, names: list[str]) -> int:
     try:
         with ReplayClient(INPUT, OUTPUT) as client:
             _wait_for(client, node, out)
-            print(f"learned, radius {LEARNED['radius']} m, frames decimated to every {step}th row and column:")
-            learned = _replay(client, [f.decimated(step) for f in frames], "learned")
+            print(f"hybrid (the node's default), radius {RADIUS} m, full 640x480 frames:")
+            hybrid = _replay(client, frames, "hybrid")
             ok, reason = client.set_parameters(PCA)
             if not ok:
                 raise SystemExit(f"demo: switching to pca was rejected: {reason}")
-            print(f"pca, radius {PCA['radius']} m, k = {PCA['k']}, full 640x480 frames, after a parameter change:")
+            print(f"pca over the same {RADIUS} m ball and 512-point pool, full 640x480 frames, after a change:")
             pca = _replay(client, frames, "pca")
-        _summary(learned + pca)
-        for path in _pictures(out, learned, pca, step):
+        _summary(hybrid + pca)
+        for path in _pictures(out, hybrid, pca):
             print(f"wrote {path}")
     finally:
         code = _stop(node)
@@ -165,10 +176,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--prefix", type=Path, required=True, help="colcon install prefix of triplet_normal_ros")
     parser.add_argument("--out", type=Path, default=Path("out"), help="where pictures and logs go")
-    parser.add_argument("--step", type=int, default=4, help="decimation of the frames the learned method sees")
     parser.add_argument("--frames", nargs="+", default=list(FRAMES), choices=FRAMES)
     args = parser.parse_args(argv)
-    return run(args.prefix.resolve(), args.out.resolve(), args.step, args.frames)
+    return run(args.prefix.resolve(), args.out.resolve(), args.frames)
 
 
 if __name__ == "__main__":

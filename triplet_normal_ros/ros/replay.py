@@ -46,10 +46,6 @@ class Frame:
     def shape(self) -> tuple[int, int]:
         return self.rgb.shape
 
-    def decimated(self, step: int) -> Frame:
-        """Every ``step``-th row and column: an organized frame ``step``² times smaller (what the demo replays)."""
-        return Frame(f"{self.name}/{step}", self.xyz[::step, ::step], self.rgb[::step, ::step])
-
     def to_cloud(self, header: Header) -> PointCloud2:
         """x, y, z FLOAT32 plus ``rgb`` as PCL publishes it (the packed uint32 bits in a FLOAT32 field)."""
         h, w = self.shape
