@@ -157,7 +157,7 @@ def main() -> None:
         print(f"validation {name}: " + ", ".join(f"{kind} {value:.5f}" for kind, value in sorted(kinds.items())))
     for estimator in estimators.values():
         estimator.radius = range_eval.DEPTH_RADIUS
-    scores, summary = range_eval.evaluate_depth_frames(estimators, quick=False)
+    scores, summary = range_eval.evaluate_set("depth", estimators, quick=False)
     print(f"depth frames: {summary}")
     for score in scores:
         print(f"depth {score.name}: MSAE {score.msae():.5f}, near edges {score.msae(True):.5f}")

@@ -179,6 +179,14 @@ def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
     assert "| fandisk100k | cad | 1.2 |" in pcp and "images/heatmap_fandisk.png" in pcp
     assert read_section(doc, "bench") == "kept"
     assert (doc.parent / "images" / "heatmap_fandisk.png").stat().st_size > 10_000
+    for kind, radius in (("depth", "0.05 m"), ("lidar", "0.25 m")):  # the simulated range images
+        block = read_section(doc, f"eval-{kind}")
+        assert block is not None and f"radius {radius}" in block
+        cells = [line.split("|")[1:-1] for line in block.splitlines() if line.startswith("| ")]
+        rows = {c[0].strip(): c[1:] for c in cells}
+        assert rows["learned"][3].strip() == "1.000"  # every row is also a ratio to learned
+        share = rows["hybrid (gate 10)"][4].strip()
+        assert share.endswith("%") and 0 < int(share[:-1]) < 100  # hybrid says how much went to the network
 
 
 def test_eval_without_pcpnet_dir_fails_before_working(tmp_path: Path) -> None:

@@ -186,13 +186,15 @@ def run(
     if out is not None:
         update_section(out, "eval-val", val_md)
 
-    start = time.perf_counter()
-    scores, summary = range_eval.evaluate_depth_frames(range_eval.contenders(checkpoint, device), quick)
-    depth_md = range_eval.depth_markdown(scores, summary, header.split("\n")[0])
-    depth_md += f"\n\nWall time {(time.perf_counter() - start) / 60:.1f} min."
-    print(depth_md)
-    if out is not None:
-        update_section(out, "eval-depth", depth_md)
+    for kind, spec in range_eval.SETS.items():
+        start = time.perf_counter()
+        estimators = range_eval.contenders(checkpoint, device, radius=spec.radius)
+        scores, summary = range_eval.evaluate_set(kind, estimators, quick)
+        markdown = range_eval.set_markdown(kind, scores, summary, header.split("\n")[0])
+        markdown += f"\n\nWall time {(time.perf_counter() - start) / 60:.1f} min."
+        print(markdown)
+        if out is not None:
+            update_section(out, f"eval-{kind}", markdown)
 
     start = time.perf_counter()
     pcp = evaluate_pcpnet(contenders, pcpnet_dir, per_cloud, quick)

@@ -1,8 +1,9 @@
 """Accuracy on simulated range images (training.range_scans): what robots see, at a metric radius.
 
-Per frame, every method estimates at the same fixed-seed subset of valid pixels, with neighbourhoods from the whole
-frame; MSAE is reported overall and on the pixels near an edge (within the radius of another face), where the
-learned method's gain sits. The hybrid row also says what fraction of points went through the network.
+Two sets: Kinect-like depth frames at r = 0.05 m and 32-beam spinning-LiDAR scans at r = 0.25 m. Per frame, every
+method estimates at the same fixed-seed subset of valid pixels, with neighbourhoods from the whole frame; MSAE is
+reported overall and on the pixels near an edge (within the radius of another face), where the learned method's gain
+sits. The hybrid rows also say what fraction of points went through the network.
 """
 
 from __future__ import annotations
@@ -19,10 +20,29 @@ from .metrics import angles_rad
 
 #: The metric radius robots use on depth frames (issue #10): 5 cm.
 DEPTH_RADIUS = 0.05
-#: Depth frames evaluated (seeds 0..n-1 of training.range_scans.depth_frames) and query pixels per frame.
-DEPTH_FRAMES, DEPTH_QUERIES = 3, 5000
+#: On 32-beam LiDAR scans the rings are ~1.3° apart, so a ball must span several of them (issue #12): 25 cm.
+LIDAR_RADIUS = 0.25
+#: Frames evaluated per set (seeds 0..n-1 of training.range_scans) and query pixels per frame.
+FRAMES, QUERIES = 3, 5000
 QUICK_FRAMES, QUICK_QUERIES = 1, 300
 QUERY_SEED = 0
+
+
+@dataclass(frozen=True)
+class RangeSet:
+    """One evaluation set of simulated range images."""
+
+    kind: str  # "depth" | "lidar"
+    title: str
+    radius: float
+
+
+SETS = {
+    "depth": RangeSet("depth", "Kinect-like 640x480 depth frames", DEPTH_RADIUS),
+    "lidar": RangeSet(
+        "lidar", "32-beam spinning-LiDAR scans (32x1800, 0.2° azimuth steps, 1.5 cm range noise)", LIDAR_RADIUS
+    ),
+}
 
 
 @dataclass
@@ -41,43 +61,49 @@ class MethodScore:
         return float(np.mean(sq[edge] if edge_only else sq)) if (edge.any() or not edge_only) else float("nan")
 
 
-def contenders(checkpoint: str | None, device: str, k: int | None = None) -> dict[str, NormalEstimator]:
+def contenders(
+    checkpoint: str | None, device: str, k: int | None = None, radius: float = DEPTH_RADIUS
+) -> dict[str, NormalEstimator]:
     """PCA at the k = 30 cap (Open3D's usual), PCA over the learned method's pool, learned, and hybrid; with the
     shipped default, also the lite checkpoint learned and hybrid."""
     from ..core.checkpoint import SHIPPED
 
-    learned = NormalEstimator("learned", radius=DEPTH_RADIUS, checkpoint=checkpoint, device=device, k=k)
-    hybrid = NormalEstimator("hybrid", radius=DEPTH_RADIUS, checkpoint=checkpoint, device=device, k=k)
+    learned = NormalEstimator("learned", radius=radius, checkpoint=checkpoint, device=device, k=k)
+    hybrid = NormalEstimator("hybrid", radius=radius, checkpoint=checkpoint, device=device, k=k)
     rows = {
-        "PCA, k = 30": NormalEstimator("pca", radius=DEPTH_RADIUS, k=30, device=device),
+        "PCA, k = 30": NormalEstimator("pca", radius=radius, k=30, device=device),
         f"PCA, k = {POOL_FACTOR * learned.k} (the learned pool)": NormalEstimator(
-            "pca", radius=DEPTH_RADIUS, k=POOL_FACTOR * learned.k, device=device
+            "pca", radius=radius, k=POOL_FACTOR * learned.k, device=device
         ),
         "learned": learned,
         f"hybrid (gate {hybrid.gate:g})": hybrid,
     }
     if checkpoint is None and "lite" in SHIPPED:
-        rows["learned, lite"] = NormalEstimator("learned", radius=DEPTH_RADIUS, checkpoint="lite", device=device)
-        rows["hybrid, lite"] = NormalEstimator("hybrid", radius=DEPTH_RADIUS, checkpoint="lite", device=device)
+        rows["learned, lite"] = NormalEstimator("learned", radius=radius, checkpoint="lite", device=device)
+        rows["hybrid, lite"] = NormalEstimator("hybrid", radius=radius, checkpoint="lite", device=device)
     return rows
 
 
-def evaluate_depth_frames(estimators: dict[str, NormalEstimator], quick: bool) -> tuple[list[MethodScore], dict]:
-    """Score every estimator on the simulated depth frames; returns the scores and a summary of the frames."""
+def evaluate_set(
+    kind: str, estimators: dict[str, NormalEstimator], quick: bool
+) -> tuple[list[MethodScore], dict]:
+    """Score every estimator on one set's frames; returns the scores and a summary of the frames."""
     from tqdm import tqdm
 
-    from ..training.range_scans import depth_frames
+    from ..training import range_scans
 
-    frames = depth_frames(QUICK_FRAMES if quick else DEPTH_FRAMES)
-    per_frame = QUICK_QUERIES if quick else DEPTH_QUERIES
+    spec = SETS[kind]
+    count = QUICK_FRAMES if quick else FRAMES
+    frames = range_scans.depth_frames(count) if kind == "depth" else range_scans.lidar_scans(count)
+    per_frame = QUICK_QUERIES if quick else QUERIES
     scores = [MethodScore(name, [], []) for name in estimators]
     summary = {"frames": len(frames), "queries": 0, "near_edge": 0}
-    for frame in tqdm(frames, desc="eval depth", unit="frame", disable=None, file=sys.stderr):
+    for frame in tqdm(frames, desc=f"eval {kind}", unit="frame", disable=None, file=sys.stderr):
         points, normals = frame.points.reshape(-1, 3), frame.normals.reshape(-1, 3)
         valid = np.flatnonzero(frame.valid.reshape(-1))
         rng = np.random.default_rng(QUERY_SEED)
         query = np.sort(rng.choice(valid, min(per_frame, len(valid)), replace=False))
-        edge = frame.near_edge.reshape(-1)[query]
+        edge = _near_edge(frame, spec.radius)[query]
         summary["queries"] += len(query)
         summary["near_edge"] += int(edge.sum())
         for score, estimator in zip(scores, estimators.values(), strict=True):
@@ -91,8 +117,18 @@ def evaluate_depth_frames(estimators: dict[str, NormalEstimator], quick: bool) -
     return scores, summary
 
 
-def depth_markdown(scores: list[MethodScore], summary: dict, header: str) -> str:
-    """The depth-frame table, each method as MSAE and as a ratio to full-ball PCA and to learned."""
+def _near_edge(frame, radius: float) -> np.ndarray:
+    """The frame's own mask when it was made for this radius, else recomputed from its face ids at `radius`."""
+    from ..training.range_scans import EDGE_RADIUS, near_edges
+
+    if radius == EDGE_RADIUS:
+        return frame.near_edge.reshape(-1)
+    return near_edges(frame.points.reshape(-1, 3), frame.face.reshape(-1), radius).reshape(-1)
+
+
+def set_markdown(kind: str, scores: list[MethodScore], summary: dict, header: str) -> str:
+    """One set's table, each method as MSAE and as a ratio to PCA over the learned pool and to learned."""
+    spec = SETS[kind]
     reference = next(s for s in scores if "learned pool" in s.name)
     learned = next(s for s in scores if s.name == "learned")
     rows = []
@@ -104,13 +140,13 @@ def depth_markdown(scores: list[MethodScore], summary: dict, header: str) -> str
         )
     return "\n".join(
         [
-            "## Accuracy on simulated depth frames (`triplet-normal eval`)",
+            f"## Accuracy on simulated {'depth frames' if kind == 'depth' else 'LiDAR scans'} (`triplet-normal eval`)",
             "",
             header,
-            f"Frames: {summary['frames']} Kinect-like 640x480 depth frames (docs/RANGE_SCANS.md, seeds 0-"
-            f"{summary['frames'] - 1}), radius {DEPTH_RADIUS} m, {summary['queries']} query pixels "
-            f"(`default_rng({QUERY_SEED})` per frame), {summary['near_edge']} of them within {DEPTH_RADIUS} m of "
-            "another face (*near edges*). MSAE in rad², sign-invariant; neighbourhoods from the whole frame.",
+            f"Frames: {summary['frames']} {spec.title} (docs/RANGE_SCANS.md, seeds 0-{summary['frames'] - 1}), "
+            f"radius {spec.radius} m, {summary['queries']} query pixels (`default_rng({QUERY_SEED})` per frame), "
+            f"{summary['near_edge']} of them within {spec.radius} m of another face (*near edges*). MSAE in rad², "
+            "sign-invariant; neighbourhoods from the whole frame.",
             "",
             "| method | MSAE | MSAE near edges | / PCA (pool) | / learned | network share | seconds |",
             "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
