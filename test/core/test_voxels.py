@@ -7,7 +7,7 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.estimator import NormalEstimator, open_search
 from triplet_normal_ros.core.neighbours import NeighbourIndex
 from triplet_normal_ros.core.voxels import VoxelIndex
 from triplet_normal_ros.evaluation.bench import torus_cloud
@@ -153,8 +153,7 @@ def test_auto_picks_voxel_for_unorganized_clouds_on_a_gpu_and_the_kdtree_on_a_cp
     """The choice alone: a CUDA device is pretended for the decision; the indices are built on CPU tensors."""
     points = torus_cloud(600)
     cloud = torch.from_numpy(points)
-    estimator = NormalEstimator("pca", radius=0.1, device="cpu")
-    assert estimator._search(points, cloud, None).name == "kdtree"
-    estimator.device = torch.device("cuda")
-    assert estimator._search(points, cloud, None).name == "voxel"
-    assert estimator._search(points, cloud, (20, 30)).name == "voxel"  # organized but not a range image: no grid
+    cpu, cuda = torch.device("cpu"), torch.device("cuda")
+    assert open_search(points, cloud, None, "auto", cpu).name == "kdtree"
+    assert open_search(points, cloud, None, "auto", cuda).name == "voxel"
+    assert open_search(points, cloud, (20, 30), "auto", cuda).name == "voxel"  # organized, not a range image: no grid

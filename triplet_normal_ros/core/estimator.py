@@ -158,7 +158,7 @@ class NormalEstimator:
         timings = {} if timings is None else timings
         cloud = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64)).to(self.device)
         with _timed(timings, "neighbours"):
-            search = self._search(points, cloud, shape)
+            search = open_search(points, cloud, shape, self.neighbours, self.device)
         # Non-finite query points keep their NaN rows without costing a search (a third of a Kinect frame).
         todo = np.flatnonzero(search.finite[query])
         self.last_run = RunInfo(search.name, len(todo))
@@ -178,21 +178,6 @@ class NormalEstimator:
                 progress(len(out))
         return normals, curvature
 
-    def _search(self, points: np.ndarray, cloud: torch.Tensor, shape: tuple[int, int] | None) -> _Search:
-        """'voxel': the cell lists. 'grid': the pixel grid when the cloud is organized and looks like a sensor-frame
-        range image, else the KD-tree. 'kdtree': the KD-tree. 'auto' on a GPU keeps the whole estimate on the device:
-        the grid where it applies, else the cell lists; 'auto' on a CPU is the KD-tree, the fastest there
-        (docs/RESULTS.md)."""
-        on_gpu = self.neighbours == "auto" and self.device.type == "cuda"
-        organized = shape is not None and shape[0] > 1 and shape[0] * shape[1] == len(points)
-        if (self.neighbours == "grid" or on_gpu) and organized:
-            grid = GridIndex(cloud, *shape)
-            if grid.usable:
-                return _GridSearch(grid)
-        if self.neighbours == "voxel" or on_gpu:
-            return _VoxelSearch(VoxelIndex(cloud))
-        return _TreeSearch(NeighbourIndex(points), self.device)
-
     def _pool_size(self) -> int:
         """PCA keeps k neighbours; the network sees k points drawn from a pool of POOL_FACTOR × k (the nearest, on the
         KD-tree and the cell lists; a uniform sample of the ball of about that size, on the pixel grid)."""
@@ -201,10 +186,7 @@ class NormalEstimator:
     def _pca_chunk(self, cloud, centres, pool, _rows, _cancel, timings) -> tuple[np.ndarray, np.ndarray]:
         """PCA of each pool; the network methods' `rows` (hash keys) and `cancel` (between batches) are not needed."""
         with _timed(timings, "pca"):
-            mask = pool >= 0
-            valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
-            local = cloud[pool.clamp_min(0)] - centres.unsqueeze(1)
-            eigvals, frame = principal_frames(masked_covariance(local, mask), valid)
+            _, _, valid, eigvals, frame = _pool_pca(cloud, centres, pool)
             return _finish(frame[:, 2], surface_variation(eigvals), valid)
 
     @torch.inference_mode()
@@ -220,14 +202,11 @@ class NormalEstimator:
         """PCA of the whole pool everywhere (the learned method's own frame); the network where a quadric explains
         the neighbourhood significantly better than that plane (`frames.quadric_f_statistic` > gate)."""
         with _timed(timings, "pca"):
-            mask = pool >= 0
-            valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
-            local = torch.where(mask.unsqueeze(-1), (cloud[pool.clamp_min(0)] - centres.unsqueeze(1)) / self.radius, 0)
-            eigvals, frame = principal_frames(masked_covariance(local, mask), valid)
+            local, mask, valid, eigvals, frame = _pool_pca(cloud, centres, pool)
             curvature = surface_variation(eigvals)
             normal = frame[:, 2].clone()
         with _timed(timings, "gate"):
-            structured = quadric_f_statistic(local, mask, frame) > self.gate
+            structured = quadric_f_statistic(local / self.radius, mask, frame) > self.gate
             gated = torch.nonzero(valid & structured).squeeze(1)
         if len(gated):
             with _timed(timings, "patches"):
@@ -249,6 +228,26 @@ class NormalEstimator:
                 local[lo : lo + self.batch_size] = self.model(patches[lo : lo + self.batch_size])
             _sync(self.device)
         return local
+
+
+def open_search(
+    points: np.ndarray, cloud: torch.Tensor, shape: tuple[int, int] | None, neighbours: str, device: torch.device
+) -> _Search:
+    """The neighbour search `neighbours` asks for, for an estimator on `device` (`cloud` lives there).
+
+    'voxel': the cell lists. 'grid': the pixel grid when the cloud is organized and looks like a sensor-frame range
+    image, else the KD-tree. 'kdtree': the KD-tree. 'auto' on a GPU keeps the whole estimate on the device: the grid
+    where it applies, else the cell lists; 'auto' on a CPU is the KD-tree, the fastest there (docs/RESULTS.md).
+    """
+    on_gpu = neighbours == "auto" and device.type == "cuda"
+    organized = shape is not None and shape[0] > 1 and shape[0] * shape[1] == len(points)
+    if (neighbours == "grid" or on_gpu) and organized:
+        grid = GridIndex(cloud, *shape)
+        if grid.usable:
+            return _GridSearch(grid)
+    if neighbours == "voxel" or on_gpu:
+        return _VoxelSearch(VoxelIndex(cloud))
+    return _TreeSearch(NeighbourIndex(points), device)
 
 
 class _Search:
@@ -294,6 +293,16 @@ class _GridSearch(_DeviceSearch):
     """A uniform sample of the ball through the pixel grid, on the device (see organized.py)."""
 
     name = "grid"
+
+
+def _pool_pca(cloud: torch.Tensor, centres: torch.Tensor, pool: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """(local offsets, mask, valid, ascending eigenvalues, frames) of each -1 padded pool: the PCA that `pca` answers
+    with and that `hybrid` answers with where its gate stays shut. Padding entries are masked out downstream."""
+    mask = pool >= 0
+    valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
+    local = cloud[pool.clamp_min(0)] - centres.unsqueeze(1)
+    eigvals, frame = principal_frames(masked_covariance(local, mask), valid)
+    return local, mask, valid, eigvals, frame
 
 
 def _finish(normals: torch.Tensor, curvature: torch.Tensor, valid: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:

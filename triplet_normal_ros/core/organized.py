@@ -69,8 +69,9 @@ class GridIndex:
         # A coarse probe measures how far the ball really reaches along each axis before the full lattice is laid.
         probe = min(half, _PROBE_HALF)
         probe_step = torch.ceil(span / probe)
-        hit = self._sample(rows, _spiral_offsets(probe, rows.device), probe_step, radius) >= 0
-        reached = (_spiral_offsets(probe, rows.device).abs().unsqueeze(0) * probe_step.unsqueeze(1)).where(
+        coarse = _spiral_offsets(probe, rows.device)
+        hit = self._sample(rows, coarse, probe_step, radius) >= 0
+        reached = (coarse.abs().unsqueeze(0) * probe_step.unsqueeze(1)).where(
             hit.unsqueeze(-1), 0
         ).amax(dim=1)
         span = torch.minimum(span, reached + probe_step - 1).clamp_min(1)

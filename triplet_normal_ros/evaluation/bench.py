@@ -117,10 +117,7 @@ def neighbour_rows(points: np.ndarray, shape, device: str, queries: int) -> list
     """(search, pool, seconds per query, mean neighbours) of the KD-tree and the pixel grid on the depth frame."""
     import torch
 
-    from ..core.estimator import _GridSearch, _TreeSearch, _VoxelSearch
-    from ..core.neighbours import NeighbourIndex
-    from ..core.organized import GridIndex
-    from ..core.voxels import VoxelIndex
+    from ..core.estimator import open_search
 
     valid = np.flatnonzero(np.isfinite(points).all(axis=1))
     rows = torch.from_numpy(np.sort(np.random.default_rng(0).choice(valid, min(queries, len(valid)), replace=False)))
@@ -129,18 +126,12 @@ def neighbour_rows(points: np.ndarray, shape, device: str, queries: int) -> list
     for pool in (PCA_SMALL_K, POOL_FACTOR * 128):
         for name in ("kdtree", "grid", "voxel"):
             start = time.perf_counter()
-            cloud = torch.from_numpy(points.astype(np.float64)).to(dev)
-            if name == "kdtree":
-                search = _TreeSearch(NeighbourIndex(points), dev)
-            elif name == "grid":
-                search = _GridSearch(GridIndex(cloud, *shape))
-            else:
-                search = _VoxelSearch(VoxelIndex(cloud))
+            search = open_search(points, torch.from_numpy(points.astype(np.float64)).to(dev), shape, name, dev)
             found = 0
             for lo in range(0, len(rows), 4096):
                 found += int((search.pool(rows[lo : lo + 4096].to(dev), DEPTH_RADIUS, pool) >= 0).sum())
             seconds = time.perf_counter() - start
-            out.append((name, pool, seconds / len(rows), found / len(rows)))
+            out.append((search.name, pool, seconds / len(rows), found / len(rows)))
     return out
 
 
