@@ -10,10 +10,10 @@ STAMP := $(VENV)/.installed
 PINS := \
 	torch==2.13.0 \
 	numpy==2.4.6 scipy==1.17.1 \
-	ros-rclpy==9.1.2 ros-sensor-msgs==5.5.1 ros-rmw-fastrtps-cpp==9.3.3 \
+	ros-rclpy==9.1.2 ros-sensor-msgs==5.5.1 ros-rmw-fastrtps-cpp==9.3.3 ros-diagnostic-msgs==5.5.1 \
 	colcon-core==0.21.3 colcon-ros==0.5.0 colcon-python-setup-py==0.2.9 colcon-bash==0.5.0 \
 	"setuptools<80" \
-	safetensors==0.8.0 trimesh==5.2.0 manifold3d==3.5.4 rtree==1.4.1 pypcd4==1.5.1 \
+	rosbags==0.11.9 safetensors==0.8.0 trimesh==5.2.0 manifold3d==3.5.4 rtree==1.4.1 pypcd4==1.5.1 \
 	tqdm==4.70.1 matplotlib==3.11.2 \
 	pytest==9.2.0 hypothesis==6.170.15 ruff==0.17.6
 

@@ -20,7 +20,7 @@ setup(
     extras_require={
         "test": ["pytest", "hypothesis"],
         "train": ["trimesh", "manifold3d", "rtree", "tqdm", "matplotlib"],
-        "io": ["pypcd4"],
+        "io": ["pypcd4", "rosbags"],
     },
     zip_safe=False,
     maintainer="triplet_normal_ros maintainers",
