@@ -5,7 +5,8 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-# Every dependency, pinned. torch==2.13.0 resolves to the CPU wheel; a looser pin pulls CUDA builds.
+# Every dependency, pinned. torch==2.13.0 is whatever build pip finds first: here the local CPU wheel (/opt/wheels),
+# elsewhere PyPI's CUDA build (several GB). README, "Which torch", says how to choose the CPU or CUDA build.
 # setuptools<80: newer releases silently break `colcon build --symlink-install`.
 PINS := \
 	torch==2.13.0 \
@@ -22,6 +23,8 @@ PINS := \
 venv: $(STAMP)
 
 # One line per step; pip's own output only when a step fails (the editable install's is kept in $(VENV)/install.log).
+# editable_mode=compat: a plain .pth path entry, which PYTHONPATH (a colcon install's setup.bash, the tests, the demo)
+# precedes; setuptools' default finder would hand any module the colcon install lacks to the source tree instead.
 $(STAMP): Makefile setup.py package.xml
 	@echo "make venv: [1/3] virtual environment in $(VENV)/"
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -29,7 +32,8 @@ $(STAMP): Makefile setup.py package.xml
 	@$(PY) -m pip install -q --upgrade pip
 	@$(PY) -m pip install -q $(PINS)
 	@echo "make venv: [3/3] installing triplet_normal_ros itself (editable)"
-	@$(PY) -m pip install -q --no-deps --no-build-isolation -e . >$(VENV)/install.log 2>&1 \
+	@$(PY) -m pip install -q --no-deps --no-build-isolation -e . --config-settings editable_mode=compat \
+		>$(VENV)/install.log 2>&1 \
 		|| { cat $(VENV)/install.log; exit 1; }
 	@touch $(STAMP)
 
