@@ -93,6 +93,7 @@ class TripletNormalNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
+        self.get_logger().info(f"running triplet_normal_ros from {os.path.dirname(os.path.dirname(__file__))}")
         settings = self._declare_parameters()
         estimator = self._build(settings, StartupError)
         self._log_expected_throughput(estimator)  # before the worker exists: the probe uses the estimator alone
