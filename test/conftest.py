@@ -7,6 +7,7 @@ go to the repository's git-ignored ``.cache/``, never under $HOME. ``slow`` mark
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import signal
@@ -167,6 +168,25 @@ class NodeProcess:
             self.proc.kill()
             self.proc.wait(10)
         self._log.close()
+
+
+@contextlib.contextmanager
+def running_node(
+    prefix: Path,
+    ros_env: Mapping[str, str],
+    folder: Path,
+    params: Mapping[str, Any],
+    remaps: Mapping[str, str],
+    reliable_topics: tuple[str, ...] = (),
+) -> Iterator[NodeProcess]:
+    """A node for a module-scoped fixture: its parameter file and log in ``folder``, ready when yielded, then closed."""
+    path = params_yaml(folder / "params.yaml", params, reliable_topics)
+    node = NodeProcess(prefix, installed_env(prefix, ros_env), path, remaps, path.with_suffix(".log"))
+    try:
+        assert node.wait_for_log("ready:", 60), node.log
+        yield node
+    finally:
+        node.close()
 
 
 @pytest.fixture

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import PACKAGE, NodeProcess, installed_env, params_yaml, site_packages
+from conftest import PACKAGE, NodeProcess, installed_env, running_node, site_packages
 from probe_client import ProbeClient, cropped
 from scipy.spatial import cKDTree
 from sensor_msgs.msg import PointCloud2, PointField
@@ -42,12 +42,9 @@ SHUTDOWN_S = 2.0
 @pytest.fixture(scope="module")
 def pca_node(install_prefix: Path, ros_env: dict[str, str], tmp_path_factory) -> Iterator[NodeProcess]:
     """One node for the module: pca, a reliable input override (full frames are ~5 MB; see README, QoS)."""
-    path = params_yaml(tmp_path_factory.mktemp("node") / "params.yaml", PCA_PARAMS, reliable_topics=(IN,))
-    env = installed_env(install_prefix, ros_env)
-    node = NodeProcess(install_prefix, env, path, {"input": IN, "output": OUT}, path.with_suffix(".log"))
-    assert node.wait_for_log("ready:", 60), node.log
-    yield node
-    node.close()
+    folder = tmp_path_factory.mktemp("node")
+    with running_node(install_prefix, ros_env, folder, PCA_PARAMS, {"input": IN, "output": OUT}, (IN,)) as node:
+        yield node
 
 
 @pytest.fixture(scope="module")

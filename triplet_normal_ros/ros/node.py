@@ -16,6 +16,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.exceptions import ParameterException
@@ -33,6 +34,8 @@ from ..core.estimator import NormalEstimator
 from ..core.orientation import orient_towards_viewpoint
 from ..errors import CheckpointError, CloudFormatError, EstimationCancelled, EstimatorError
 from ..io.pointcloud2 import empty_with_normals, read_xyz, with_normals
+from . import diagnostics
+from .health import assess, settings_values
 from .mailbox import Mailbox
 from .params import K_METHOD_DEFAULT, SPECS, NodeSettings, ParamSpec, apply, needs_reload, validate_all
 from .stats import ProcessingStats
@@ -117,7 +120,9 @@ class TripletNormalNode(Node):
             qos_overriding_options=QoSOverridingOptions.with_default_policies(),
             callback_group=MutuallyExclusiveCallbackGroup(),
         )
-        self._stats_timer = self.create_timer(settings.stats_period, self._log_stats)
+        self._diagnostics = self.create_publisher(DiagnosticArray, diagnostics.TOPIC, diagnostics.DEPTH)
+        self._diagnostic_name = diagnostics.status_name(self.get_fully_qualified_name())
+        self._stats_timer = self.create_timer(settings.stats_period, self._report_stats)
         self._worker = threading.Thread(target=self._work, name="triplet_normal_worker", daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -191,14 +196,14 @@ class TripletNormalNode(Node):
             try:
                 self._process(msg)
             except (CloudFormatError, EstimatorError) as error:
-                self._stats.reject()
+                self._stats.reject(str(error))
                 log.error(f"skipped a malformed cloud: {error}", throttle_duration_sec=THROTTLE_S)
             except EstimationCancelled:
                 return
             except Exception as error:  # the worker must outlive any one cloud; shutdown races end here too
                 if self._cancel.is_set():
                     return
-                self._stats.reject()
+                self._stats.reject(f"{type(error).__name__}: {error}")
                 log.error(f"failed on a cloud: {type(error).__name__}: {error}", throttle_duration_sec=THROTTLE_S)
 
     def _on_cloud(self, msg: PointCloud2) -> None:
@@ -240,9 +245,16 @@ class TripletNormalNode(Node):
             normals = orient_towards_viewpoint(points, normals, s.viewpoint)
         return normals, curvature
 
-    def _log_stats(self) -> None:
-        settings = self._active[1]
-        self.get_logger().info(self._stats.report(settings.stats_period, self._mailbox.dropped))
+    def _report_stats(self) -> None:
+        """Close the statistics window: log its line and publish its health on /diagnostics."""
+        estimator, settings = self._active
+        window = self._stats.window(settings.stats_period, self._mailbox.dropped)
+        self.get_logger().info(window.line())
+        device = str(estimator.device)
+        topics = (self._subscription.topic_name, self._publisher.topic_name)
+        health = assess(window, settings_values(settings, device, _k(estimator, settings), topics))
+        stamp = self.get_clock().now().to_msg()
+        self._diagnostics.publish(diagnostics.diagnostic_array(health, self._diagnostic_name, device, stamp))
 
     # -- shutdown ---------------------------------------------------------------------------------------------------
 
