@@ -185,7 +185,7 @@ def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
         cells = [line.split("|")[1:-1] for line in block.splitlines() if line.startswith("| ")]
         rows = {c[0].strip(): c[1:] for c in cells}
         assert rows["learned"][3].strip() == "1.000"  # every row is also a ratio to learned
-        share = rows["hybrid (gate 10)"][4].strip()
+        share = rows["hybrid (F > 10, bend > 0.03)"][4].strip()
         assert share.endswith("%") and 0 < int(share[:-1]) < 100  # hybrid says how much went to the network
 
 

@@ -6,16 +6,21 @@ import torch
 
 from triplet_normal_ros.core.conventions import POOL_FACTOR
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.frames import masked_covariance, principal_frames, quadric_f_statistic
+from triplet_normal_ros.core.frames import masked_covariance, principal_frames, quadric_gain
 from triplet_normal_ros.errors import EstimatorError
 
 
-def _f_of(points: np.ndarray) -> float:
-    """The F statistic of one neighbourhood given as (P, 3) points in units of the radius."""
+def _gain_of(points: np.ndarray) -> tuple[float, float]:
+    """(F, bend) of one neighbourhood given as (P, 3) points in units of the radius."""
     local = torch.from_numpy(points).unsqueeze(0)
     mask = torch.ones(local.shape[:2], dtype=torch.bool)
     _, frame = principal_frames(masked_covariance(local, mask), torch.tensor([True]))
-    return float(quadric_f_statistic(local, mask, frame)[0])
+    gain = quadric_gain(local, mask, frame)
+    return float(gain.f[0]), float(gain.bend[0])
+
+
+def _f_of(points: np.ndarray) -> float:
+    return _gain_of(points)[0]
 
 
 def _disc(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -36,6 +41,28 @@ def test_f_is_large_across_a_crease_and_zero_on_a_clean_plane() -> None:
     crease = np.c_[xy, 0.5 * np.abs(xy[:, 0]) + rng.normal(0, 0.01, 300)]  # a 53° fold through the centre
     assert _f_of(crease) > 100
     assert _f_of(np.c_[xy, np.zeros(300)]) == 0.0
+
+
+def test_bend_measures_the_departure_from_the_plane_not_its_significance() -> None:
+    """A 1 % sinusoidal ripple on 3000 points is wildly significant (F in the hundreds) but bends the surface by well
+    under the default 3 % of the radius; a fold bends it by far more, and the noise barely moves the bend."""
+    rng = np.random.default_rng(2)
+    xy = _disc(3000, rng)
+    ripple = np.c_[xy, 0.01 * np.cos(np.pi * xy[:, 0]) + rng.normal(0, 0.001, 3000)]
+    f, bend = _gain_of(ripple)
+    assert f > 100 and bend < 0.01
+    fold = np.c_[xy, 0.5 * np.abs(xy[:, 0])]
+    assert _gain_of(fold)[1] > 0.05
+    for sigma in (0.0, 0.02):  # noise alone adds about sigma * sqrt(3 / n) to the bend
+        noisy = fold + np.c_[np.zeros((3000, 2)), rng.normal(0, sigma, 3000)]
+        assert _gain_of(noisy)[1] == pytest.approx(_gain_of(fold)[1], rel=0.05)
+
+
+def test_bend_is_zero_on_a_clean_plane_and_for_too_few_points() -> None:
+    rng = np.random.default_rng(3)
+    xy = _disc(300, rng)
+    assert _gain_of(np.c_[xy, np.zeros(300)])[1] == pytest.approx(0.0, abs=1e-3)
+    assert _gain_of(np.c_[xy[:6], np.abs(xy[:6, 0])]) == (0.0, 0.0)
 
 
 def _box_corner_cloud(n: int = 6000, sigma: float = 0.004, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -75,7 +102,7 @@ def test_gate_zero_is_learned_and_an_infinite_gate_is_pca() -> None:
     query = np.arange(0, len(points), 11)
     learned = NormalEstimator("learned", radius=0.1, device="cpu").estimate(points, query)[0]
     pca = NormalEstimator("pca", radius=0.1, k=4 * 128, device="cpu").estimate(points, query)[0]
-    everything = NormalEstimator("hybrid", radius=0.1, gate=0.0, device="cpu")
+    everything = NormalEstimator("hybrid", radius=0.1, gate=0.0, bend=0.0, device="cpu")
     nothing = NormalEstimator("hybrid", radius=0.1, gate=1e30, device="cpu")
     for estimator, expected in ((everything, learned), (nothing, pca)):
         cosine = np.einsum("ij,ij->i", estimator.estimate(points, query)[0], expected)
@@ -87,3 +114,19 @@ def test_gate_zero_is_learned_and_an_infinite_gate_is_pca() -> None:
 def test_bad_gates_are_refused(gate: object) -> None:
     with pytest.raises(EstimatorError, match="gate must be"):
         NormalEstimator("pca", gate=gate)
+
+
+def test_an_infinite_bend_is_pca_whatever_the_gate() -> None:
+    points, _ = _box_corner_cloud(3000)
+    query = np.arange(0, len(points), 11)
+    flat = NormalEstimator("hybrid", radius=0.1, gate=0.0, bend=1e30, device="cpu")
+    pca = NormalEstimator("pca", radius=0.1, k=4 * 128, device="cpu").estimate(points, query)[0]
+    cosine = np.einsum("ij,ij->i", flat.estimate(points, query)[0], pca)
+    np.testing.assert_allclose(np.abs(cosine), 1, atol=1e-6)
+    assert flat.last_run.network == 0
+
+
+@pytest.mark.parametrize("bend", [-0.1, float("nan"), float("inf"), False, "0.03"])
+def test_bad_bends_are_refused(bend: object) -> None:
+    with pytest.raises(EstimatorError, match="bend must be"):
+        NormalEstimator("pca", bend=bend)

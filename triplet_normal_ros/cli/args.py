@@ -1,9 +1,12 @@
 """Argument checks shared by the subcommands: each failure is a UsageError with the option's name in it."""
 
+import argparse
 import math
 import shlex
 from collections.abc import Sequence
+from typing import Any
 
+from ..core.conventions import HYBRID_BEND, HYBRID_GATE
 from ..errors import UsageError
 
 
@@ -37,3 +40,33 @@ def results_file(path) -> None:
     """A results markdown to update must sit in an existing directory (it is created, never its parents)."""
     if path is not None and not path.parent.is_dir():
         raise UsageError(f"--out {path}: directory {path.parent} does not exist")
+
+
+def add_hybrid_options(p: argparse.ArgumentParser) -> None:
+    """--gate and --bend: hybrid's two thresholds, for every subcommand that builds an estimator."""
+    p.add_argument(
+        "--gate",
+        type=float,
+        metavar="G",
+        help=f"hybrid: F statistic (quadric vs plane) above which the network may answer (default {HYBRID_GATE:g})",
+    )
+    p.add_argument(
+        "--bend",
+        type=float,
+        metavar="B",
+        help="hybrid: ... and the quadric's RMS departure from the plane, as a fraction of the radius, above which it "
+        f"does (default {HYBRID_BEND:g}; 0 leaves it to --gate)",
+    )
+
+
+def hybrid_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The given hybrid thresholds as NormalEstimator keywords, after checking them (UsageError)."""
+    options = {}
+    for name, what in (("gate", "F statistic"), ("bend", "fraction of the radius")):
+        value = getattr(args, name)
+        if value is None:
+            continue
+        if not (math.isfinite(value) and value >= 0):
+            raise UsageError(f"--{name} must be a finite {what} >= 0, got {value}")
+        options[name] = value
+    return options

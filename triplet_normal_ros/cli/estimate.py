@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.conventions import HYBRID_GATE, METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K, RADIUS_FRACTION
+from ..core.conventions import METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K, RADIUS_FRACTION
 from ..errors import UsageError
 from . import args as checks
 
@@ -53,12 +53,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--viewpoint", type=float, nargs=3, metavar=("X", "Y", "Z"), help="orient: flip normals to face this point"
     )
     p.add_argument("--batch-size", type=int, metavar="B", help="patches per network call (default: the estimator's)")
-    p.add_argument(
-        "--gate",
-        type=float,
-        metavar="G",
-        help=f"hybrid: F statistic (quadric vs plane) above which the network answers (default {HYBRID_GATE:g})",
-    )
+    checks.add_hybrid_options(p)
     p.add_argument(
         "--neighbours",
         choices=NEIGHBOUR_SEARCHES,
@@ -124,8 +119,7 @@ def _check(args: argparse.Namespace) -> None:
     checks.at_least("batch-size", args.batch_size, 1)
     if args.viewpoint is not None and not np.isfinite(args.viewpoint).all():
         raise UsageError(f"--viewpoint must be three finite numbers, got {args.viewpoint}")
-    if args.gate is not None and not (np.isfinite(args.gate) and args.gate >= 0):
-        raise UsageError(f"--gate must be a finite F statistic >= 0, got {args.gate}")
+    checks.hybrid_options(args)
     checks.device(args.device)
 
 
@@ -152,8 +146,7 @@ def _make_estimator(args: argparse.Namespace, radius: float):
     from ..core.estimator import NormalEstimator
 
     options = {"k": args.k, "checkpoint": args.checkpoint, "device": args.device, "neighbours": args.neighbours}
-    if args.gate is not None:
-        options["gate"] = args.gate
+    options.update(checks.hybrid_options(args))
     if args.batch_size is not None:
         options["batch_size"] = args.batch_size
     return NormalEstimator(method=args.method, radius=radius, **options)

@@ -16,8 +16,11 @@ RADIUS_FRACTION = 0.05
 #: Fewer neighbours than this inside the ball gives a NaN row (PCL's convention: a plane needs three points).
 MIN_NEIGHBOURS = 3
 #: Hybrid sends a point to the network when a quadric explains its neighbourhood better than the PCA plane by more than
-#: this F statistic (about 1 on a flat surface at any noise level; chosen in docs/RESULTS.md).
+#: this F statistic (about 1 on a flat surface at any noise level) ...
 HYBRID_GATE = 10.0
+#: ... and departs from the plane by more than this RMS height, in units of the radius (a systematic millimetre of
+#: waviness in a 5 cm ball is significant but harmless). Both chosen in docs/RESULTS.md (`docs/tools/gate_study.py`).
+HYBRID_BEND = 0.03
 #: Neighbour searches: 'kdtree' (CPU), 'grid' (organized clouds only; falls back to the KD-tree), 'voxel' (sorted cell
 #: lists on the device, any cloud), 'auto' (on CUDA the grid for organized clouds, else voxel; the KD-tree on a CPU).
 NEIGHBOUR_SEARCHES = ("auto", "kdtree", "grid", "voxel")

@@ -20,9 +20,17 @@ import torch
 
 from ..errors import EstimationCancelled, EstimatorError
 from .checkpoint import load_checkpoint
-from .conventions import HYBRID_GATE, METHODS, MIN_NEIGHBOURS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K, POOL_FACTOR
+from .conventions import (
+    HYBRID_BEND,
+    HYBRID_GATE,
+    METHODS,
+    MIN_NEIGHBOURS,
+    NEIGHBOUR_SEARCHES,
+    PCA_DEFAULT_K,
+    POOL_FACTOR,
+)
 from .device import resolve_device
-from .frames import masked_covariance, principal_frames, quadric_f_statistic, surface_variation
+from .frames import masked_covariance, principal_frames, quadric_gain, surface_variation
 from .neighbours import NeighbourIndex
 from .organized import GridIndex
 from .patches import build_patches, to_world
@@ -50,8 +58,9 @@ class NormalEstimator:
     """Unit normals and PCL surface variation for an (N, 3) cloud, by the learned network, PCA, or both (hybrid).
 
     `hybrid` runs PCA on the learned method's pool everywhere and the network only where a quadric fits the
-    neighbourhood better than PCA's plane by more than `gate` times the noise (an F statistic): near edges and folds,
-    where PCA blurs and the network pays for itself (docs/MODEL.md).
+    neighbourhood better than PCA's plane both significantly (F statistic > `gate`) and substantially (it departs
+    from the plane by an RMS height > `bend` × radius): near edges and folds, where PCA blurs and the network pays
+    for itself, and not on the mild waviness of real depth sensors (docs/MODEL.md).
     """
 
     def __init__(
@@ -65,6 +74,7 @@ class NormalEstimator:
         seed: int = 0,
         gate: float = HYBRID_GATE,
         neighbours: str = "auto",
+        bend: float = HYBRID_BEND,
     ) -> None:
         if method not in METHODS:
             raise EstimatorError(f"method must be one of {METHODS}, got {method!r}")
@@ -82,6 +92,7 @@ class NormalEstimator:
         self.batch_size = batch_size
         self.seed = seed
         self.gate = gate
+        self.bend = bend
         self.neighbours = neighbours
         self.last_run = RunInfo()
 
@@ -111,9 +122,15 @@ class NormalEstimator:
 
     @gate.setter
     def gate(self, value: float) -> None:
-        if not (_is_real(value) and np.isfinite(value) and value >= 0):
-            raise EstimatorError(f"gate must be a finite F statistic >= 0, got {value!r}")
-        self._gate = float(value)
+        self._gate = _threshold("gate", "F statistic", value)
+
+    @property
+    def bend(self) -> float:
+        return self._bend
+
+    @bend.setter
+    def bend(self, value: float) -> None:
+        self._bend = _threshold("bend", "RMS height (a fraction of the radius)", value)
 
     @property
     def neighbours(self) -> str:
@@ -200,13 +217,15 @@ class NormalEstimator:
     @torch.inference_mode()
     def _hybrid_chunk(self, cloud, centres, pool, rows, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
         """PCA of the whole pool everywhere (the learned method's own frame); the network where a quadric explains
-        the neighbourhood significantly better than that plane (`frames.quadric_f_statistic` > gate)."""
+        the neighbourhood significantly (F > gate) and substantially (bend > bend) better than that plane
+        (`frames.quadric_gain`)."""
         with _timed(timings, "pca"):
             local, mask, valid, eigvals, frame = _pool_pca(cloud, centres, pool)
             curvature = surface_variation(eigvals)
             normal = frame[:, 2].clone()
         with _timed(timings, "gate"):
-            structured = quadric_f_statistic(local / self.radius, mask, frame) > self.gate
+            gain = quadric_gain(local / self.radius, mask, frame)
+            structured = (gain.f > self.gate) & (gain.bend > self.bend)
             gated = torch.nonzero(valid & structured).squeeze(1)
         if len(gated):
             with _timed(timings, "patches"):
@@ -310,6 +329,13 @@ def _finish(normals: torch.Tensor, curvature: torch.Tensor, valid: torch.Tensor)
     normals = torch.where(valid.unsqueeze(-1), normals, torch.nan)
     curvature = torch.where(valid, curvature.to(torch.float64), torch.nan)
     return normals.to(torch.float32).cpu().numpy(), curvature.to(torch.float32).cpu().numpy()
+
+
+def _threshold(name: str, what: str, value: object) -> float:
+    """A hybrid threshold: a finite real >= 0 (bools and strings are refused, not coerced)."""
+    if not (_is_real(value) and np.isfinite(value) and value >= 0):
+        raise EstimatorError(f"{name} must be a finite {what} >= 0, got {value!r}")
+    return float(value)
 
 
 def _is_real(value: object) -> bool:

@@ -76,7 +76,7 @@ def contenders(
             "pca", radius=radius, k=POOL_FACTOR * learned.k, device=device
         ),
         "learned": learned,
-        f"hybrid (gate {hybrid.gate:g})": hybrid,
+        f"hybrid (F > {hybrid.gate:g}, bend > {hybrid.bend:g})": hybrid,
     }
     if checkpoint is None and "lite" in SHIPPED:
         rows["learned, lite"] = NormalEstimator("learned", radius=radius, checkpoint="lite", device=device)

@@ -183,8 +183,8 @@ class TripletNormalNode(Node):
         source = "" if s.method == "pca" else f", checkpoint={s.checkpoint or 'default'}"
         return (
             f"method={s.method}{source}, device={estimator.device}, radius={s.radius:g} m, k={_k(estimator, s)}, "
-            f"batch_size={s.batch_size}, gate={s.gate:g}, neighbours={s.neighbours}, orient={s.orient}, "
-            f"viewpoint={list(s.viewpoint)}"
+            f"batch_size={s.batch_size}, gate={s.gate:g}, bend={s.bend:g}, neighbours={s.neighbours}, "
+            f"orient={s.orient}, viewpoint={list(s.viewpoint)}"
         )
 
     # -- worker -----------------------------------------------------------------------------------------------------
@@ -237,7 +237,7 @@ class TripletNormalNode(Node):
             )
             return np.full((len(points), 3), np.nan, np.float32), np.full(len(points), np.nan, np.float32)
         estimator.radius, estimator.k, estimator.batch_size = s.radius, _k(estimator, s), s.batch_size
-        estimator.gate, estimator.neighbours = s.gate, s.neighbours
+        estimator.gate, estimator.bend, estimator.neighbours = s.gate, s.bend, s.neighbours
         # Holes (non-finite xyz) are skipped by the estimator itself and come back as NaN rows; an organized cloud's
         # (height, width) lets the estimator walk its pixel grid.
         normals, curvature = estimator.estimate(points, cancel=self._cancel, shape=shape)

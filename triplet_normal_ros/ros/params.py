@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ..core.conventions import HYBRID_GATE, METHODS, MIN_NEIGHBOURS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
+from ..core.conventions import HYBRID_BEND, HYBRID_GATE, METHODS, MIN_NEIGHBOURS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
 from ..core.device import validate_device_name
 
 #: Parameters whose change builds a new estimator (loading the checkpoint); the rest apply to the next cloud in place.
@@ -78,6 +78,14 @@ SPECS: tuple[ParamSpec, ...] = (
         (0.0, 1e9),
     ),
     ParamSpec(
+        "bend",
+        float,
+        HYBRID_BEND,
+        "hybrid: ... and where that quadric departs from the plane by more than this RMS height, as a fraction of "
+        "'radius' (mild sensor waviness stays with PCA); 0 leaves the choice to 'gate' alone.",
+        (0.0, 1e9),
+    ),
+    ParamSpec(
         "neighbours",
         str,
         "auto",
@@ -113,6 +121,7 @@ class NodeSettings:
     radius: float = 0.03
     k: int = K_METHOD_DEFAULT
     gate: float = HYBRID_GATE
+    bend: float = HYBRID_BEND
     neighbours: str = "auto"
     orient: bool = True
     viewpoint: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -128,6 +137,7 @@ class NodeSettings:
             "device": self.device,
             "batch_size": self.batch_size,
             "gate": self.gate,
+            "bend": self.bend,
             "neighbours": self.neighbours,
         }
 
