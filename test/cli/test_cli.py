@@ -175,7 +175,8 @@ def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     val, pcp = read_section(doc, "eval-val"), read_section(doc, "eval-pcpnet")
     assert "| v_notch_block | cad | 1 |" in val and "smooth shapes: no worse than PCA 5%" in val
-    assert val.count("95% CI ") == 2  # both target ratios carry their bootstrap interval
+    assert "| 0.5 + 1 pooled | 1 |" in val  # the CAD clouds against the Bayes floor
+    assert val.count("95% CI ") == 3  # both target ratios and the Bayes floor's ratio carry their bootstrap interval
     assert "| fandisk100k | cad | 1.2 |" in pcp and "images/heatmap_fandisk.png" in pcp
     assert read_section(doc, "bench") == "kept"
     assert (doc.parent / "images" / "heatmap_fandisk.png").stat().st_size > 10_000
