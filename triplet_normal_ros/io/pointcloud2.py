@@ -42,6 +42,7 @@ _DATATYPES: dict[int, str] = {
     PointField.FLOAT64: "f8",
 }
 _FLOAT_TYPES = (PointField.FLOAT32, PointField.FLOAT64)
+_UINT32_MAX = 2**32 - 1  # point_step, row_step, offset and count are uint32 in the message
 
 
 @dataclass(frozen=True)
@@ -84,8 +85,8 @@ class _Layout:
         strides: tuple[int, ...] = (self.row_step, self.point_step)
         if count > 1:
             shape, strides = (*shape, count), (*strides, dtype.itemsize)
-        if self.size == 0:
-            return np.empty(shape, dtype)
+        if self.size == 0:  # all dimensions 0: an empty cloud may still declare height 2^32-1 and count 2^32-1
+            return np.empty((0,) * len(shape), dtype)
         return np.ndarray(shape, dtype, buffer=self.buf, offset=offset, strides=strides)
 
 
@@ -247,6 +248,19 @@ def _check_normals(n: int, normals: np.ndarray, curvature: np.ndarray) -> tuple[
     return normals, curvature
 
 
+def _check_output_steps(step: int, width: int) -> None:
+    """The answer's point_step and row_step are uint32 on the wire; larger values would wrap silently when published.
+
+    Only fields that repeat or overlap (or a count near 2^32 in an empty cloud) can get there, since the input's own
+    steps are uint32 too.
+    """
+    if max(step, width * step) > _UINT32_MAX:
+        raise CloudFormatError(
+            f"the answer would need point_step {step} and row_step {width * step}, more than a PointCloud2's uint32 "
+            "can hold (fields that repeat or overlap, or a huge count)"
+        )
+
+
 def _with_normals(msg: PointCloud2, layout: _Layout, normals: np.ndarray, curvature: np.ndarray, dense: bool):
     kept = [f for f in layout.fields if f.name not in NORMAL_FIELDS]
     out_fields, offset = [], 0
@@ -257,11 +271,13 @@ def _with_normals(msg: PointCloud2, layout: _Layout, normals: np.ndarray, curvat
     out_fields += [_point_field(name, offset + 4 * i, PointField.FLOAT32, 1) for i, name in enumerate(NORMAL_FIELDS)]
     step = offset + 4 * len(NORMAL_FIELDS)
     h, w = layout.height, layout.width
+    _check_output_steps(step, w)
     out = np.empty(h * w * step, dtype=np.uint8)
-    (_copy_swapped if msg.is_bigendian else _copy_runs)(layout, kept, out, step)
-    f4 = np.dtype("<f4")
-    _out_view(out, h, w, step, normals_offset, f4, 3)[...] = normals.reshape(h, w, 3)
-    _out_view(out, h, w, step, normals_offset + 12, f4)[...] = curvature.reshape(h, w)
+    if h * w:
+        (_copy_swapped if msg.is_bigendian else _copy_runs)(layout, kept, out, step)
+        f4 = np.dtype("<f4")
+        _out_view(out, h, w, step, normals_offset, f4, 3)[...] = normals.reshape(h, w, 3)
+        _out_view(out, h, w, step, normals_offset + 12, f4)[...] = curvature.reshape(h, w)
     cloud = _new_cloud(msg.header, h, w, out_fields, step)
     cloud.is_dense = dense and _all_finite((normals, curvature))
     cloud.data = array.array("B")
@@ -274,6 +290,8 @@ def with_normals(msg: PointCloud2, normals: np.ndarray, curvature: np.ndarray) -
 
     Input fields already called normal_x, normal_y, normal_z or curvature are dropped and written anew at the end.
     The header is copied; ``is_dense`` is True iff every xyz, normal and curvature value is finite.
+    Raises CloudFormatError as :func:`read_xyz` does, and when the packed answer's point_step or row_step would not fit
+    in uint32.
     """
     layout = _layout(msg)
     normals, curvature = _check_normals(layout.size, normals, curvature)
@@ -285,6 +303,7 @@ def empty_with_normals(msg: PointCloud2) -> PointCloud2:
 
     Keeps ``height``/``width`` of an already empty input; otherwise height 1, width 0 (PCL's empty cloud). A field-less
     input (a default-constructed message) gives just the normal fields, so subscribers always see the same schema.
+    Raises CloudFormatError for an unknown datatype, a count below 1, or fields whose packed size would not fit uint32.
     """
     fields = _parse_fields(msg.fields, ">" if msg.is_bigendian else "<")
     height, width = (msg.height, msg.width) if msg.height * msg.width == 0 else (1, 0)
