@@ -30,6 +30,10 @@ class CloudFormatError(TripletNormalError, ValueError):
     """A sensor_msgs/PointCloud2 that cannot be read; the message says exactly why."""
 
 
+class BagError(TripletNormalError, ValueError):
+    """A rosbag2 that cannot be read or written as asked: missing, corrupt, without the topic, of another type."""
+
+
 class TrainingError(TripletNormalError, ValueError):
     """Training settings that cannot work together, or a run directory that cannot be resumed."""
 

@@ -1,0 +1,304 @@
+"""`triplet-normal bag` end to end on rosbag2 bags the tests write (sqlite3 and MCAP, organized and unorganized clouds).
+
+The output is read back and compared with NormalEstimator on the same clouds, oriented towards the viewpoint as
+the node does: normals and curvature exactly, xyz and the other fields byte for byte, receive timestamps and header
+stamps unchanged, the other topics copied through. Also: storage conversion, --no-copy, a hybrid run, a malformed
+cloud skipped with a warning, refusal to overwrite, resume after Ctrl-C, and every failure as one line.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbag_files import (
+    CLOUD,
+    STRING,
+    Record,
+    cloud,
+    organized_points,
+    read_bag,
+    read_raw,
+    scattered_points,
+    stamp_ns,
+    storage_of,
+    string,
+    write_bag,
+)
+
+from triplet_normal_ros.cli import bag as bag_command
+from triplet_normal_ros.cli.main import main
+from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.orientation import orient_towards_viewpoint
+from triplet_normal_ros.io import bag_output
+from triplet_normal_ros.io.bag_output import partial_path
+from triplet_normal_ros.io.pointcloud2 import read_field, read_xyz
+from triplet_normal_ros.ros.params import NodeSettings
+
+SCRIPT = Path(sys.executable).with_name("triplet-normal")
+RADIUS = 0.15
+PCA = ["--method", "pca", "--radius", str(RADIUS), "--device", "cpu"]
+SHAPE = (30, 40)
+
+
+def mixed_records() -> list[Record]:
+    """Two organized clouds (with NaN holes), an unorganized one and an empty one on /points; /chatter between."""
+    clouds = [
+        cloud(organized_points(*SHAPE, phase=0.0), 10_000_000_001, height=SHAPE[0]),
+        cloud(scattered_points(2000, seed=2), 10_100_000_002),
+        cloud(organized_points(*SHAPE, phase=1.0), 10_200_000_003, height=SHAPE[0]),
+        cloud(np.empty((0, 3)), 10_300_000_004, height=1),
+    ]
+    records = []
+    for i, msg in enumerate(clouds):
+        records.append(Record("/points", CLOUD, 1_000_000 * (i + 1), msg))
+        records.append(Record("/chatter", STRING, 1_000_000 * (i + 1) + 500, string(f"message {i}")))
+    return records
+
+
+def expected(msg, method: str = "pca", radius: float = RADIUS, **options) -> tuple[np.ndarray, np.ndarray]:
+    """What the node publishes for `msg`: NormalEstimator's normals oriented towards the origin, and curvature."""
+    points = read_xyz(msg)
+    estimator = NormalEstimator(method=method, radius=radius, device="cpu", **options)
+    normals, curvature = estimator.estimate(points, shape=(msg.height, msg.width))
+    return orient_towards_viewpoint(points, normals, (0.0, 0.0, 0.0)), curvature
+
+
+def assert_normals_match(out: Record, source: Record, **options) -> None:
+    """Same receive time, header, points and other fields as `source`; normals and curvature as the estimator's."""
+    assert out.timestamp == source.timestamp
+    assert (stamp_ns(out.msg), out.msg.header.frame_id) == (stamp_ns(source.msg), source.msg.header.frame_id)
+    assert (out.msg.height, out.msg.width) == (source.msg.height, source.msg.width)
+    np.testing.assert_array_equal(read_xyz(out.msg), read_xyz(source.msg))
+    np.testing.assert_array_equal(read_field(out.msg, "intensity"), read_field(source.msg, "intensity"))
+    if source.msg.height * source.msg.width == 0:
+        assert "normal_x" in [f.name for f in out.msg.fields]
+        return
+    normals, curvature = expected(source.msg, **options)
+    got = np.stack([read_field(out.msg, f"normal_{a}") for a in "xyz"], axis=1)
+    np.testing.assert_array_equal(got, normals)
+    np.testing.assert_array_equal(read_field(out.msg, "curvature"), curvature)
+    finite = np.isfinite(got).all(axis=1)
+    assert finite.sum() > 0.9 * np.isfinite(read_xyz(source.msg)).all(axis=1).sum()
+    points = read_xyz(source.msg)[finite]
+    assert (np.einsum("ij,ij->i", -points, got[finite]) >= 0).all()  # facing the sensor at the origin
+
+
+def run_ok(capsys, argv: list) -> str:
+    status = main(["bag", *map(str, argv)])
+    captured = capsys.readouterr()
+    assert status == 0, captured.err
+    return captured.out
+
+
+def run_fails(capsys, argv: list, status: int = 1) -> str:
+    """The command fails with exactly one line `triplet-normal: error: ...` and nothing on stdout."""
+    got = main(["bag", *map(str, argv)])
+    captured = capsys.readouterr()
+    assert got == status, captured.err
+    assert captured.out == "" and "Traceback" not in captured.err
+    lines = captured.err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("triplet-normal: error: "), captured.err
+    return lines[0]
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_normals_match_the_estimator_and_everything_else_is_copied(tmp_path: Path, capsys, storage: str) -> None:
+    records = mixed_records()
+    source = write_bag(tmp_path / "in", storage, records)
+    summary = run_ok(capsys, [source, tmp_path / "out", "--topic", "/points", *PCA])
+    assert summary.startswith(f"{source}: 4 clouds on /points (0 skipped), 2 topics copied; pca, radius 0.15 m, cpu")
+    assert summary.rstrip().endswith(f" s -> {tmp_path / 'out'} ({storage}, /points/normals)")
+    out = tmp_path / "out"
+    assert storage_of(out) == storage
+    raw = read_raw(out)
+    assert [r for r in raw if r[0] != "/points/normals"] == read_raw(source)  # copied byte for byte, same times
+    normals = [r for r in read_bag(out) if r.topic == "/points/normals"]
+    clouds = [r for r in records if r.topic == "/points"]
+    assert len(normals) == len(clouds)
+    for got, source_record in zip(normals, clouds, strict=True):
+        assert got.msgtype == CLOUD
+        assert_normals_match(got, source_record)
+    assert not partial_path(out).exists()
+
+
+def test_converts_storage_and_writes_only_the_output_with_no_copy(tmp_path: Path, capsys) -> None:
+    records = mixed_records()[:4]
+    source = write_bag(tmp_path / "in", "mcap", records)
+    out = tmp_path / "out"
+    options = ["--storage", "sqlite3", "--no-copy", "--output-topic", "/n", *PCA]
+    run_ok(capsys, [source, out, "--topic", "/points", *options])
+    assert storage_of(out) == "sqlite3"
+    got = read_bag(out)
+    assert [r.topic for r in got] == ["/n", "/n"]
+    for record, source_record in zip(got, [r for r in records if r.topic == "/points"], strict=True):
+        assert_normals_match(record, source_record)
+
+
+def test_hybrid_matches_the_estimator(tmp_path: Path, capsys) -> None:
+    msg = cloud(organized_points(*SHAPE), 42, height=SHAPE[0])
+    source = write_bag(tmp_path / "in", "mcap", [Record("/cam/points", CLOUD, 7, msg)])
+    options = ["--method", "hybrid", "--checkpoint", "lite", "--radius", str(RADIUS), "--device", "cpu"]
+    run_ok(capsys, [source, tmp_path / "out", "--topic", "/cam/points", *options])
+    (_, got) = read_bag(tmp_path / "out")
+    assert got.topic == "/cam/points/normals"
+    estimator = NormalEstimator(method="hybrid", checkpoint="lite", radius=RADIUS, device="cpu")
+    estimator.estimate(read_xyz(msg), shape=SHAPE)
+    assert estimator.last_run.network > 0  # the crease goes through the network, so the learned path is compared
+    assert_normals_match(got, Record("/cam/points", CLOUD, 7, msg), method="hybrid", checkpoint="lite")
+
+
+def test_a_malformed_cloud_is_skipped_with_a_warning(tmp_path: Path, capsys) -> None:
+    good = cloud(scattered_points(2000, seed=4), 5)
+    bad = cloud(scattered_points(500, seed=5), 6)
+    bad.fields = bad.fields[:2] + bad.fields[3:]  # no 'z'
+    records = [Record("/points", CLOUD, 1, bad), Record("/points", CLOUD, 2, good)]
+    source = write_bag(tmp_path / "in", "sqlite3", records)
+    status = main(["bag", str(source), str(tmp_path / "out"), "--topic", "/points", *PCA])
+    captured = capsys.readouterr()
+    assert status == 0
+    assert "(1 skipped)" in captured.out
+    assert captured.err.splitlines() == [
+        "triplet-normal: warning: skipped the cloud at 1 ns: PointCloud2 has no 'z' field (fields: x, y, intensity)"
+    ]
+    got = read_bag(tmp_path / "out")
+    assert [(r.topic, r.timestamp) for r in got] == [("/points", 1), ("/points", 2), ("/points/normals", 2)]
+    assert_normals_match(got[2], records[1])
+
+
+def test_refuses_to_overwrite_unless_told(tmp_path: Path, capsys) -> None:
+    source = write_bag(tmp_path / "in", "mcap", mixed_records()[:2])
+    out = tmp_path / "out"
+    run_ok(capsys, [source, out, "--topic", "/points", *PCA])
+    before = read_raw(out)
+    line = run_fails(capsys, [source, out, "--topic", "/points", *PCA, "--output-topic", "/other"])
+    assert line == f"triplet-normal: error: {out} already exists; pass --overwrite to replace it"
+    assert read_raw(out) == before and not partial_path(out).exists()
+    run_ok(capsys, [source, out, "--topic", "/points", *PCA, "--output-topic", "/other", "--overwrite"])
+    assert {r[0] for r in read_raw(out)} == {"/points", "/chatter", "/other"}
+
+
+@pytest.mark.slow
+def test_resumes_after_ctrl_c(tmp_path: Path, capsys) -> None:
+    """Interrupted after its first crash-safe segment, the run keeps its work; --resume finishes the rest."""
+    records = [
+        Record("/points", CLOUD, 1_000 * (i + 1), cloud(organized_points(*SHAPE, phase=0.1 * i), i, height=SHAPE[0]))
+        for i in range(30)
+    ]
+    source = write_bag(tmp_path / "in", "mcap", records)
+    out = tmp_path / "out"
+    argv = [str(source), str(out), "--topic", "/points", *PCA, "--segment-seconds", "0"]
+    process = subprocess.Popen([SCRIPT, "bag", *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    segments = partial_path(out) / "segments"
+    deadline = time.monotonic() + 120
+    while not (segments.is_dir() and any(p.name != "open" for p in segments.iterdir())):
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        time.sleep(0.02)
+    process.send_signal(signal.SIGINT)
+    stdout, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, (stdout, stderr)
+    assert stderr.splitlines()[-1] == (
+        f"triplet-normal: error: interrupted; finished work is kept in {partial_path(out)}: rerun with --resume"
+    )
+    assert not out.exists()
+    line = run_fails(capsys, [*argv, "--radius", "0.2", "--resume"])
+    assert line.endswith(f"{partial_path(out)} was started with radius = 0.15, not 0.2; resume with the same input "
+                         "and options, or pass --overwrite to start again")
+    summary = run_ok(capsys, [*argv, "--resume"])
+    resumed_at = int(summary.split("resumed at input message ")[1].split(",")[0])
+    assert 1 <= resumed_at < len(records)
+    got = read_bag(out)
+    assert [r.timestamp for r in got if r.topic == "/points"] == [r.timestamp for r in records]
+    normals = [r for r in got if r.topic == "/points/normals"]
+    assert len(normals) == len(records)
+    for record, source_record in zip(normals, records, strict=True):
+        assert_normals_match(record, source_record)
+
+
+def test_resume_of_a_finished_run_refuses(tmp_path: Path, capsys) -> None:
+    source = write_bag(tmp_path / "in", "sqlite3", mixed_records()[:2])
+    out = tmp_path / "out"
+    args = [source, out, "--topic", "/points", *PCA, "--segment-seconds", "0"]
+    run_ok(capsys, args)
+    line = run_fails(capsys, [*args, "--resume"])
+    assert line == f"triplet-normal: error: {out} already exists; pass --overwrite to replace it"
+    assert not partial_path(out).exists()
+
+
+def test_defaults_are_the_nodes() -> None:
+    node = NodeSettings()
+    assert (node.method, node.radius) == (bag_command.DEFAULT_METHOD, bag_command.DEFAULT_RADIUS)
+    assert tuple(node.viewpoint) == bag_command.DEFAULT_VIEWPOINT and node.orient
+    assert bag_command.SEGMENT_SECONDS == bag_output.SEGMENT_SECONDS
+
+
+# ---------------------------------------------------------------- one-line errors
+
+
+@pytest.fixture
+def small_bag(tmp_path: Path) -> Path:
+    return write_bag(tmp_path / "in", "mcap", mixed_records()[:2])
+
+
+def test_missing_topic_names_the_topics(small_bag: Path, tmp_path: Path, capsys) -> None:
+    line = run_fails(capsys, [small_bag, tmp_path / "out", "--topic", "/lidar", *PCA])
+    assert line == (
+        f"triplet-normal: error: {small_bag}: no topic /lidar; topics: /chatter (std_msgs/msg/String), "
+        "/points (sensor_msgs/msg/PointCloud2)"
+    )
+    assert not (tmp_path / "out").exists() and not partial_path(tmp_path / "out").exists()
+
+
+def test_wrong_message_type(small_bag: Path, tmp_path: Path, capsys) -> None:
+    line = run_fails(capsys, [small_bag, tmp_path / "out", "--topic", "/chatter", *PCA])
+    assert line.endswith("topic /chatter holds std_msgs/msg/String, not sensor_msgs/msg/PointCloud2")
+
+
+def test_missing_input(tmp_path: Path, capsys) -> None:
+    line = run_fails(capsys, [tmp_path / "none", tmp_path / "out", "--topic", "/points", *PCA])
+    assert line == f"triplet-normal: error: {tmp_path / 'none'}: no such bag (a rosbag2 directory, .mcap or .db3 file)"
+
+
+def test_output_topic_that_exists_in_the_input(small_bag: Path, tmp_path: Path, capsys) -> None:
+    line = run_fails(capsys, [small_bag, tmp_path / "out", "--topic", "/points", "--output-topic", "/chatter"], 2)
+    assert line.endswith(f"--output-topic /chatter is a topic of {small_bag}; choose another")
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--radius", "0"], "--radius must be a finite number > 0"),
+        (["--k", "2"], "--k must be >= 3"),
+        (["--segment-seconds", "-1"], "--segment-seconds must be a finite number >= 0"),
+        (["--viewpoint", "0", "nan", "0"], "--viewpoint must be three finite numbers"),
+        (["--overwrite", "--resume"], "argument --resume: not allowed with argument --overwrite"),
+        (["--method", "magic"], "argument --method: invalid choice"),
+    ],
+)
+def test_bad_options(small_bag: Path, tmp_path: Path, capsys, extra: list[str], message: str) -> None:
+    assert message in run_fails(capsys, [small_bag, tmp_path / "out", "--topic", "/points", *extra], 2)
+
+
+def test_out_inside_in_or_in_inside_out(small_bag: Path, tmp_path: Path, capsys) -> None:
+    for out in (small_bag, small_bag / "sub", tmp_path):
+        line = run_fails(capsys, [small_bag, out, "--topic", "/points", *PCA], 2)
+        assert line.endswith(f"must lie outside IN {small_bag} and not contain it")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_corrupt_bag_is_one_line_from_the_console_script(tmp_path: Path, storage: str) -> None:
+    source = write_bag(tmp_path / "in", storage, mixed_records()[:2])
+    (storage_file,) = [p for p in source.iterdir() if p.suffix in (".mcap", ".db3")]
+    storage_file.write_bytes(storage_file.read_bytes()[:300])
+    argv = [SCRIPT, "bag", source, tmp_path / "out", "--topic", "/points", *PCA]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1 and done.stdout == ""
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"triplet-normal: error: {source}: not a readable rosbag2: "), lines
+    assert not (tmp_path / "out").exists() and not partial_path(tmp_path / "out").exists()

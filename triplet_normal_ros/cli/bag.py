@@ -1,0 +1,247 @@
+"""`triplet-normal bag IN OUT --topic T`: normals for every PointCloud2 of a rosbag2, into a new rosbag2."""
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from ..core.conventions import HYBRID_GATE, METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
+from ..errors import CloudFormatError, EstimationCancelled, EstimatorError, UsageError
+from . import args as checks
+
+#: The node's defaults (ros/params.py), so a bag processed offline matches what the node would have published.
+DEFAULT_METHOD = "hybrid"
+DEFAULT_RADIUS = 0.03
+DEFAULT_VIEWPOINT = (0.0, 0.0, 0.0)
+#: io.bag_output.SEGMENT_SECONDS (a test checks), written here so that `--help` does not import rosbags.
+SEGMENT_SECONDS = 30.0
+
+DESCRIPTION = """Read a rosbag2 (sqlite3 or MCAP; a bag directory or a bare .mcap/.db3 file) without ROS, estimate
+normals for every sensor_msgs/PointCloud2 on --topic exactly as the node does (same defaults, normals oriented towards
+--viewpoint), and write a new bag OUT: each cloud plus normal_x/y/z and curvature on --output-topic, with the input's
+receive timestamps and header stamps, and every input topic copied through unless --no-copy. OUT is written through
+OUT.partial and appears only when complete; an interrupted run continues with --resume. See docs/CLI.md."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", metavar="IN", type=Path, help="input rosbag2: a bag directory, or a .mcap or .db3 file")
+    p.add_argument("output", metavar="OUT", type=Path, help="output bag directory (must not exist, see --overwrite)")
+    p.add_argument("--topic", required=True, help="the sensor_msgs/PointCloud2 topic to estimate normals on")
+    p.add_argument("--output-topic", metavar="TOPIC", help="topic of the clouds with normals (default: TOPIC/normals)")
+    p.add_argument("--storage", choices=("sqlite3", "mcap"), help="output storage (default: the input's)")
+    p.add_argument("--no-copy", action="store_true", help="write only the output topic, not the input's topics")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--overwrite", action="store_true", help="replace an existing OUT and an unfinished OUT.partial")
+    again.add_argument("--resume", action="store_true", help="continue the unfinished run in OUT.partial")
+    p.add_argument(
+        "--segment-seconds",
+        type=float,
+        default=SEGMENT_SECONDS,
+        metavar="S",
+        help=f"close a crash-safe segment of OUT.partial at least every S seconds (default {SEGMENT_SECONDS:g})",
+    )
+    p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD, help=f"default {DEFAULT_METHOD}, as the node")
+    p.add_argument("--radius", type=float, default=DEFAULT_RADIUS, metavar="R", help=f"in m (default {DEFAULT_RADIUS})")
+    p.add_argument(
+        "--k", type=int, metavar="K", help=f"learned/hybrid: points per patch (default: the checkpoint's); pca: cap "
+        f"(default {PCA_DEFAULT_K})"
+    )
+    p.add_argument("--checkpoint", metavar="C", help="safetensors checkpoint or shipped name (default, lite)")
+    p.add_argument("--device", default="auto", metavar="D", help="auto, cpu, cuda or cuda:N (default auto)")
+    p.add_argument("--batch-size", type=int, metavar="B", help="patches per network call (default: the estimator's)")
+    p.add_argument("--gate", type=float, metavar="G", help=f"hybrid: F statistic gate (default {HYBRID_GATE:g})")
+    p.add_argument("--neighbours", choices=NEIGHBOUR_SEARCHES, default="auto", help="neighbour search (default auto)")
+    p.add_argument(
+        "--viewpoint",
+        type=float,
+        nargs=3,
+        default=DEFAULT_VIEWPOINT,
+        metavar=("X", "Y", "Z"),
+        help="flip normals to face this point of the cloud's frame (default 0 0 0: the sensor)",
+    )
+    p.add_argument("--no-orient", action="store_true", help="leave normal signs as estimated")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Open IN, check the topic, then estimate, write and merge; Ctrl-C keeps the finished work for --resume."""
+    from ..io.bag_output import partial_path
+    from ..io.bags import InputBag
+
+    _check(args)
+    try:
+        with InputBag(args.input) as bag:
+            summary = _convert(args, bag)
+    except (KeyboardInterrupt, EstimationCancelled):  # main's one line, plus where the work is and how to go on
+        kept = partial_path(args.output)
+        where = f"finished work is kept in {kept}: rerun with --resume" if kept.exists() else "nothing was kept"
+        print(f"triplet-normal: error: interrupted; {where}", file=sys.stderr)
+        return 130
+    print(summary)
+    return 0
+
+
+def _check(args: argparse.Namespace) -> None:
+    checks.positive("radius", args.radius)
+    checks.at_least("k", args.k, 3)
+    checks.at_least("batch-size", args.batch_size, 1)
+    if not np.isfinite(args.viewpoint).all():
+        raise UsageError(f"--viewpoint must be three finite numbers, got {args.viewpoint}")
+    if args.gate is not None and not (np.isfinite(args.gate) and args.gate >= 0):
+        raise UsageError(f"--gate must be a finite F statistic >= 0, got {args.gate}")
+    if not (np.isfinite(args.segment_seconds) and args.segment_seconds >= 0):
+        raise UsageError(f"--segment-seconds must be a finite number >= 0, got {args.segment_seconds}")
+    checks.device(args.device)
+    source, target = args.input.resolve(), args.output.resolve()
+    if source == target or source in target.parents or target in source.parents:
+        raise UsageError(f"OUT {args.output} must lie outside IN {args.input} and not contain it")
+
+
+def _convert(args: argparse.Namespace, bag) -> str:
+    """Every message of IN in time order -> OUT.partial, then OUT; returns the summary line."""
+    from ..io.bag_output import ResumableBagWriter
+    from ..io.bags import CLOUD_TYPE
+
+    start = time.perf_counter()
+    cloud_spec = bag.cloud_spec(args.topic)
+    output_topic = args.output_topic or f"{args.topic.rstrip('/')}/normals"
+    copied = [] if args.no_copy else bag.specs()
+    if output_topic in {spec.topic for spec in copied}:
+        raise UsageError(f"--output-topic {output_topic} is a topic of {args.input}; choose another")
+    storage = args.storage or bag.storage
+    topics = [*copied, cloud_spec.renamed(output_topic)]
+    with ResumableBagWriter(
+        args.output, storage, topics, _job(args, bag, output_topic, storage),
+        overwrite=args.overwrite, resume=args.resume, segment_seconds=args.segment_seconds,
+    ) as writer:  # fmt: skip
+        estimator = _make_estimator(args)
+        stream = bag.messages(None if copied else {args.topic})
+        total = bag.count(args.topic)
+        clouds, skipped = _estimate_all(args, stream, writer, estimator, (output_topic, CLOUD_TYPE), total)
+        _merge(writer)
+    resumed = f", resumed at input message {writer.resumed_at}" if writer.resumed_at else ""
+    return (
+        f"{args.input}: {clouds} clouds on {args.topic} ({skipped} skipped){resumed}, {len(copied)} topics copied; "
+        f"{estimator.method}, radius {estimator.radius:g} m, {estimator.device}; {time.perf_counter() - start:.1f} s "
+        f"-> {args.output} ({storage}, {output_topic})"
+    )
+
+
+def _estimate_all(args, stream, writer, estimator, output_key: tuple[str, str], total: int) -> tuple[int, int]:
+    """Write each input message's outputs, in order, from the writer's resume point; returns (clouds, skipped)."""
+    from tqdm import tqdm
+
+    viewpoint = None if args.no_orient else args.viewpoint
+    clouds = skipped = 0
+    bar = tqdm(total=total or None, unit="cloud", desc="normals", disable=None, file=sys.stderr)
+    with _ctrl_c() as stop, bar:
+        for message in stream:
+            if stop.is_set():
+                raise KeyboardInterrupt
+            is_cloud = message.topic == args.topic
+            clouds += is_cloud
+            if message.index < writer.done:  # written before the interruption
+                bar.update(is_cloud)
+                continue
+            outputs = [] if args.no_copy else [((message.topic, message.msgtype), message.timestamp, message.raw)]
+            if is_cloud:
+                try:
+                    cloud = _with_normals(estimator, message, viewpoint, stop)
+                    outputs.append((output_key, message.timestamp, cloud))
+                except (CloudFormatError, EstimatorError) as error:
+                    skipped += 1
+                    warning = f"triplet-normal: warning: skipped the cloud at {message.timestamp} ns: {error}"
+                    bar.write(warning, file=sys.stderr)
+                bar.update(1)
+            writer.write(message.index, outputs)
+    return clouds, skipped
+
+
+@contextmanager
+def _ctrl_c() -> Iterator[threading.Event]:
+    """The first Ctrl-C only sets the event: the loop stops before the next message and the estimator between chunks.
+
+    A KeyboardInterrupt raised inside scipy's threaded KD-tree query leaves its worker threads running into the
+    interpreter's teardown, which then segfaults. A second Ctrl-C interrupts at once.
+    """
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+
+    def first(signum: int, frame: object) -> None:
+        stop.set()
+        signal.signal(signal.SIGINT, previous)
+
+    previous = signal.signal(signal.SIGINT, first)
+    try:
+        yield stop
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _with_normals(estimator, message, viewpoint, stop: threading.Event) -> memoryview:
+    """The output message for one input cloud, as the node builds it (empty clouds stay empty, with the fields)."""
+    from ..io.bags import decode_cloud, encode_cloud
+    from ..io.pointcloud2 import read_xyz
+
+    cloud = decode_cloud(message)
+    if cloud.height * cloud.width == 0:
+        return encode_cloud(cloud, None, None)
+    points = read_xyz(cloud)
+    normals, curvature = _estimate(estimator, points, (cloud.height, cloud.width), viewpoint, stop)
+    return encode_cloud(cloud, normals, curvature)
+
+
+def _estimate(estimator, points: np.ndarray, shape, viewpoint, stop: threading.Event) -> tuple[np.ndarray, np.ndarray]:
+    """Normals and curvature for every point, NaN rows where xyz is not finite or the ball too sparse; oriented."""
+    if not np.isfinite(points).all(axis=1).any():
+        return np.full((len(points), 3), np.nan, np.float32), np.full(len(points), np.nan, np.float32)
+    normals, curvature = estimator.estimate(points, shape=shape, cancel=stop)
+    if viewpoint is not None:
+        from ..core.orientation import orient_towards_viewpoint
+
+        normals = orient_towards_viewpoint(points, normals, viewpoint)
+    return normals, curvature
+
+
+def _merge(writer) -> None:
+    from tqdm import tqdm
+
+    with tqdm(unit="msg", desc="writing OUT", disable=None, file=sys.stderr) as bar:
+        writer.finish(progress=bar.update, total=bar.reset)
+
+
+def _job(args: argparse.Namespace, bag, output_topic: str, storage: str) -> dict:
+    """What the output depends on; --resume refuses to continue a run started with anything else."""
+    return {
+        "input": str(args.input.resolve()),
+        "input_messages": bag.count(),
+        "topic": args.topic,
+        "output_topic": output_topic,
+        "copy": not args.no_copy,
+        "storage": storage,
+        "method": args.method,
+        "radius": args.radius,
+        "k": args.k,
+        "checkpoint": args.checkpoint,
+        "gate": args.gate,
+        "neighbours": args.neighbours,
+        "viewpoint": None if args.no_orient else list(args.viewpoint),
+    }
+
+
+def _make_estimator(args: argparse.Namespace):
+    from ..core.estimator import NormalEstimator
+
+    options = {"k": args.k, "checkpoint": args.checkpoint, "device": args.device, "neighbours": args.neighbours}
+    if args.gate is not None:
+        options["gate"] = args.gate
+    if args.batch_size is not None:
+        options["batch_size"] = args.batch_size
+    return NormalEstimator(method=args.method, radius=args.radius, **options)

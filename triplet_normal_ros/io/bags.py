@@ -1,0 +1,196 @@
+"""Reading rosbag2 bags (sqlite3 and MCAP) and converting their PointCloud2 messages, with `rosbags`: no ROS needed.
+
+`rosbags` deserialises into its own dataclasses, whose PointCloud2 has the field names of ``sensor_msgs``, so
+:func:`..pointcloud2.read_xyz` decodes them as they are and :func:`..pointcloud2.with_normals` builds the output
+layout; only the outer message object is swapped, so the bag command and the node write the same bytes. Every
+failure to open or read a bag is one :class:`BagError` line naming the file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sqlite3
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+from rosbags.interfaces import Connection
+from rosbags.rosbag2 import Reader, ReaderError
+from rosbags.rosbag2.storage_mcap import McapReader
+from rosbags.serde import SerdeError
+from rosbags.typesys import Stores, get_typestore
+from std_msgs.msg import Header
+
+from ..errors import BagError, CloudFormatError
+from .pointcloud2 import empty_with_normals, with_normals
+
+__all__ = [
+    "CLOUD_TYPE",
+    "STORAGES",
+    "BagError",
+    "BagMessage",
+    "InputBag",
+    "TopicSpec",
+    "decode_cloud",
+    "encode_cloud",
+]
+
+CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
+#: Storage plugins rosbags reads and writes, by their rosbag2 ``storage_identifier``.
+STORAGES = ("sqlite3", "mcap")
+#: Standard message definitions, for bags that store none (sqlite3 bags recorded before Iron).
+TYPESTORE = get_typestore(Stores.ROS2_KILTED)
+_POINT_FIELD = "sensor_msgs/msg/PointField"
+#: What a damaged storage file raises from inside rosbags while messages are read.
+_READ_ERRORS = (ReaderError, SerdeError, sqlite3.Error, struct.error, EOFError, KeyError, IndexError, ValueError)
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """One output connection: everything a rosbag2 writer records about a topic, taken from the input bag."""
+
+    topic: str
+    msgtype: str
+    msgdef: str
+    digest: str
+    qos: tuple[Any, ...] = ()
+
+    @property
+    def key(self) -> tuple[str, str]:
+        return self.topic, self.msgtype
+
+    def renamed(self, topic: str) -> TopicSpec:
+        return dataclasses.replace(self, topic=topic)
+
+
+@dataclass(frozen=True)
+class BagMessage:
+    """A raw message in the input's time order: ``index`` counts the messages read, ``timestamp`` is the receive
+    time in ns (what rosbag2 records and plays back)."""
+
+    index: int
+    topic: str
+    msgtype: str
+    timestamp: int
+    raw: bytes | memoryview
+
+
+def _spec(connection: Connection) -> TopicSpec:
+    """The connection's own definition and type hash, or the standard ones when the bag stores none."""
+    msgdef, digest = connection.msgdef.data, connection.digest
+    if not (msgdef and digest):
+        if connection.msgtype not in TYPESTORE.types:
+            raise BagError(
+                f"topic {connection.topic}: the bag stores no definition of {connection.msgtype} and it is not a "
+                "standard type, so it cannot be copied; pass --no-copy"
+            )
+        msgdef = TYPESTORE.generate_msgdef(connection.msgtype, ros_version=2)[0]
+        digest = TYPESTORE.hash_rihs01(connection.msgtype)
+    qos = tuple(getattr(connection.ext, "offered_qos_profiles", ()))
+    return TopicSpec(connection.topic, connection.msgtype, msgdef, digest, qos)
+
+
+class InputBag:
+    """An open rosbag2 (a bag directory, or a bare ``.mcap`` / ``.db3`` file), read-only."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        if not self.path.exists():
+            raise BagError(f"{self.path}: no such bag (a rosbag2 directory, .mcap or .db3 file)")
+        try:
+            self._reader = Reader(self.path)
+            self._reader.open()
+        except (*_READ_ERRORS, FileNotFoundError) as error:
+            raise BagError(f"{self.path}: not a readable rosbag2: {error}") from None
+        self._connections = list(self._reader.connections)
+
+    def __enter__(self) -> InputBag:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None, tb: TracebackType | None) -> None:
+        self._reader.close()
+
+    @property
+    def storage(self) -> str:
+        """'mcap' or 'sqlite3': the input's format, the output's default."""
+        storage = self._reader.storage
+        inner = getattr(storage, "storages", None) or [storage]
+        return "mcap" if isinstance(inner[0], McapReader) else "sqlite3"
+
+    def topics(self) -> dict[str, str]:
+        """Topic -> message type, sorted by topic."""
+        return {c.topic: c.msgtype for c in sorted(self._connections, key=lambda c: c.topic)}
+
+    def count(self, topic: str | None = None) -> int:
+        """Messages on `topic` (or in the whole bag) as the bag's index records them."""
+        return sum(c.msgcount for c in self._connections if topic is None or c.topic == topic)
+
+    def cloud_spec(self, topic: str) -> TopicSpec:
+        """The PointCloud2 topic to estimate on; a BagError names the topics there are, or the type there is."""
+        found = [c for c in self._connections if c.topic == topic]
+        if not found:
+            listing = ", ".join(f"{t} ({m})" for t, m in self.topics().items()) or "none"
+            raise BagError(f"{self.path}: no topic {topic}; topics: {listing}")
+        wrong = sorted({c.msgtype for c in found} - {CLOUD_TYPE})
+        if wrong:
+            raise BagError(f"{self.path}: topic {topic} holds {', '.join(wrong)}, not {CLOUD_TYPE}")
+        return _spec(found[0])
+
+    def specs(self) -> list[TopicSpec]:
+        """Every (topic, type) of the bag once, in the bag's order: the connections to copy through."""
+        specs: dict[tuple[str, str], TopicSpec] = {}
+        for connection in self._connections:
+            if (connection.topic, connection.msgtype) not in specs:
+                specs[connection.topic, connection.msgtype] = _spec(connection)
+        return list(specs.values())
+
+    def messages(self, topics: set[str] | None = None) -> Iterator[BagMessage]:
+        """Raw messages of `topics` (default all) in time order; a damaged file ends in a BagError."""
+        chosen = [c for c in self._connections if topics is None or c.topic in topics]
+        if not chosen:
+            return
+        stream = self._reader.messages(chosen)
+        index = 0
+        while True:
+            try:
+                connection, timestamp, raw = next(stream)
+            except StopIteration:
+                return
+            except _READ_ERRORS as error:
+                raise BagError(f"{self.path}: cannot read message {index}: {error}") from None
+            yield BagMessage(index, connection.topic, connection.msgtype, timestamp, raw)
+            index += 1
+
+
+def decode_cloud(message: BagMessage) -> Any:
+    """The rosbags PointCloud2 of a raw message; bytes that do not deserialise are a CloudFormatError."""
+    try:
+        return TYPESTORE.deserialize_cdr(message.raw, CLOUD_TYPE)
+    except (SerdeError, struct.error, IndexError, ValueError, UnicodeDecodeError) as error:
+        raise CloudFormatError(f"not a CDR PointCloud2: {error}") from None
+
+
+def encode_cloud(cloud: Any, normals: np.ndarray | None, curvature: np.ndarray | None) -> memoryview:
+    """CDR bytes of `cloud` plus normal_x/y/z and curvature, laid out by `with_normals` (the node's output).
+
+    ``normals is None`` writes the zero-point cloud of `empty_with_normals`. The header (stamp, frame) is `cloud`'s.
+    """
+    shell = dataclasses.replace(cloud, header=Header())  # with_normals copies a sensor_msgs Header; ours goes back in
+    out = empty_with_normals(shell) if normals is None else with_normals(shell, normals, curvature)
+    point_field = TYPESTORE.types[_POINT_FIELD]
+    message = TYPESTORE.types[CLOUD_TYPE](
+        header=cloud.header,
+        height=out.height,
+        width=out.width,
+        fields=[point_field(name=f.name, offset=f.offset, datatype=f.datatype, count=f.count) for f in out.fields],
+        is_bigendian=out.is_bigendian,
+        point_step=out.point_step,
+        row_step=out.row_step,
+        data=np.frombuffer(out.data, dtype=np.uint8),
+        is_dense=out.is_dense,
+    )
+    return TYPESTORE.serialize_cdr(message, CLOUD_TYPE)
