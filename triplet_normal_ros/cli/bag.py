@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.conventions import HYBRID_GATE, METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
+from ..core.conventions import METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
 from ..errors import CloudFormatError, EstimationCancelled, EstimatorError, UsageError
 from . import args as checks
 
@@ -55,7 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoint", metavar="C", help="safetensors checkpoint or shipped name (default, lite)")
     p.add_argument("--device", default="auto", metavar="D", help="auto, cpu, cuda or cuda:N (default auto)")
     p.add_argument("--batch-size", type=int, metavar="B", help="patches per network call (default: the estimator's)")
-    p.add_argument("--gate", type=float, metavar="G", help=f"hybrid: F statistic gate (default {HYBRID_GATE:g})")
+    checks.add_hybrid_options(p)
     p.add_argument("--neighbours", choices=NEIGHBOUR_SEARCHES, default="auto", help="neighbour search (default auto)")
     p.add_argument(
         "--viewpoint",
@@ -92,8 +92,7 @@ def _check(args: argparse.Namespace) -> None:
     checks.at_least("batch-size", args.batch_size, 1)
     if not np.isfinite(args.viewpoint).all():
         raise UsageError(f"--viewpoint must be three finite numbers, got {args.viewpoint}")
-    if args.gate is not None and not (np.isfinite(args.gate) and args.gate >= 0):
-        raise UsageError(f"--gate must be a finite F statistic >= 0, got {args.gate}")
+    checks.hybrid_options(args)
     if not (np.isfinite(args.segment_seconds) and args.segment_seconds >= 0):
         raise UsageError(f"--segment-seconds must be a finite number >= 0, got {args.segment_seconds}")
     checks.device(args.device)
@@ -231,6 +230,7 @@ def _job(args: argparse.Namespace, bag, output_topic: str, storage: str) -> dict
         "k": args.k,
         "checkpoint": args.checkpoint,
         "gate": args.gate,
+        "bend": args.bend,
         "neighbours": args.neighbours,
         "viewpoint": None if args.no_orient else list(args.viewpoint),
     }
@@ -240,8 +240,7 @@ def _make_estimator(args: argparse.Namespace):
     from ..core.estimator import NormalEstimator
 
     options = {"k": args.k, "checkpoint": args.checkpoint, "device": args.device, "neighbours": args.neighbours}
-    if args.gate is not None:
-        options["gate"] = args.gate
+    options.update(checks.hybrid_options(args))
     if args.batch_size is not None:
         options["batch_size"] = args.batch_size
     return NormalEstimator(method=args.method, radius=args.radius, **options)
