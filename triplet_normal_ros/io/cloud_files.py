@@ -6,6 +6,7 @@ declares, or cut anywhere, is refused with one line instead of being read short 
 PCD's binary_compressed blocks go through lzf (pypcd4's dependency) and PCD files are written with pypcd4.
 """
 
+import os
 import re
 import struct
 import sys
@@ -120,6 +121,12 @@ def _read_text(path: Path) -> str:
         raise CloudFileError(f"{path}: cannot read: {_one_line(exc)}") from exc
 
 
+def _bytes_left(f) -> int:
+    """Bytes between the read position and the end of the file: checked before a read of a size a header declared,
+    so that a huge count is refused instead of attempted (MemoryError, or OverflowError past 2^63)."""
+    return os.fstat(f.fileno()).st_size - f.tell()
+
+
 def _cut_short(path: Path, declared: int, held: int, what: str = "points") -> CloudFileError:
     return CloudFileError(f"{path}: header declares {declared} {what} but the file holds only {held} (cut short?)")
 
@@ -202,6 +209,8 @@ _PCD_TYPES = {
 }
 _PCD_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "VIEWPOINT", "POINTS", "DATA")
 _PCD_ENCODINGS = ("ascii", "binary", "binary_compressed")
+#: LZF's densest token is a 3-byte back reference that expands to 264 bytes, so no block unpacks to more than 88x.
+_LZF_MAX_RATIO = 88
 
 
 @dataclass
@@ -308,10 +317,10 @@ def _pcd_ascii(path: Path, f, header: _PcdHeader) -> np.ndarray:
 def _pcd_binary(path: Path, f, header: _PcdHeader) -> np.ndarray:
     """Points one after the other, fields packed (PCL's binary layout); trailing bytes are ignored, as PCL does."""
     need = header.points * header.dtype.itemsize
-    raw = f.read(need)
-    if len(raw) < need:
-        raise _cut_short(path, header.points, len(raw) // header.dtype.itemsize)
-    return np.frombuffer(raw, header.dtype, count=header.points)
+    held = _bytes_left(f)
+    if held < need:
+        raise _cut_short(path, header.points, held // header.dtype.itemsize)
+    return np.frombuffer(f.read(need), header.dtype, count=header.points)
 
 
 def _pcd_compressed(path: Path, f, header: _PcdHeader) -> np.ndarray:
@@ -326,9 +335,12 @@ def _pcd_compressed(path: Path, f, header: _PcdHeader) -> np.ndarray:
             f"{path}: header declares {header.points} points ({need} bytes) but the compressed block unpacks to "
             f"{unpacked} bytes"
         )
+    held = _bytes_left(f)
+    if held < packed:
+        raise CloudFileError(f"{path}: compressed block holds {held} of its {packed} bytes (cut short?)")
+    if unpacked > _LZF_MAX_RATIO * packed:  # refused before lzf allocates up to 4 GB for it
+        raise CloudFileError(f"{path}: compressed block is corrupt ({packed} bytes cannot unpack to {unpacked})")
     block = f.read(packed)
-    if len(block) < packed:
-        raise CloudFileError(f"{path}: compressed block holds {len(block)} of its {packed} bytes (cut short?)")
     try:
         import lzf
     except ImportError:
@@ -412,16 +424,18 @@ def _ply_property(path: Path, words: list[str]) -> tuple[str, str | None]:
 def _ply_vertex(path: Path, f, fmt: str, elements: list) -> np.ndarray:
     """Read the vertex element; elements before it must be fixed-size so they can be skipped without parsing."""
     for name, count, props in elements:
+        if not props:
+            raise CloudFileError(f"{path}: PLY element {name!r} declares no properties")
         if any(t is None for _, t in props):
             raise CloudFileError(f"{path}: PLY element {name!r} has list properties (only vertex data is read)")
         if fmt == "ascii":
             data = _ply_ascii_rows(path, f, name, count, [p for p, _ in props])
         else:
             dtype = np.dtype([(p, _PLY_FORMATS[fmt] + t) for p, t in props])
-            raw = f.read(dtype.itemsize * count)
-            if len(raw) < dtype.itemsize * count:
-                raise _cut_short(path, count, len(raw) // dtype.itemsize, f"{name!r} rows")
-            data = np.frombuffer(raw, dtype=dtype, count=count)
+            held = _bytes_left(f)
+            if held < dtype.itemsize * count:
+                raise _cut_short(path, count, held // dtype.itemsize, f"{name!r} rows")
+            data = np.frombuffer(f.read(dtype.itemsize * count), dtype=dtype, count=count)
         if name == "vertex":
             return data
     raise CloudFileError(f"{path}: PLY has no 'vertex' element")
