@@ -298,20 +298,19 @@ def _pcd_checked_header(path: Path, values: dict[str, list[str]]) -> _PcdHeader:
 
 
 def _pcd_ascii(path: Path, f, header: _PcdHeader) -> np.ndarray:
-    """One line per point with sum(COUNT) numbers; read as float64 (every type is a number in text)."""
+    """One line per point with sum(COUNT) numbers, each parsed as its declared TYPE and SIZE, as PCL does (so a float
+    written with more digits than float32 holds reads as the float32 the binary encodings would give)."""
     rows = [line for line in f.read().decode("ascii", errors="replace").splitlines() if line.strip()]
     if len(rows) < header.points:
         raise _cut_short(path, header.points, len(rows))
     if len(rows) > header.points:
         raise CloudFileError(f"{path}: header declares {header.points} points but the file holds {len(rows)} rows")
-    floats = np.dtype([(name, "f8", header.dtype[name].shape) for name in header.dtype.names])
-    width = floats.itemsize // 8
+    width = sum(header.dtype[name].shape[0] for name in header.dtype.names)
     bad = next((i for i, row in enumerate(rows) if len(row.split()) != width), None)
     if bad is not None:
         n = len(rows[bad].split())
         raise CloudFileError(f"{path}: PCD data line {bad + 1} has {n} values, the header declares {width} per point")
-    table = np.loadtxt(rows, dtype=np.float64, ndmin=2)
-    return np.ascontiguousarray(table).view(floats).reshape(header.points)
+    return np.loadtxt(rows, dtype=header.dtype, ndmin=1)
 
 
 def _pcd_binary(path: Path, f, header: _PcdHeader) -> np.ndarray:
@@ -429,7 +428,7 @@ def _ply_vertex(path: Path, f, fmt: str, elements: list) -> np.ndarray:
         if any(t is None for _, t in props):
             raise CloudFileError(f"{path}: PLY element {name!r} has list properties (only vertex data is read)")
         if fmt == "ascii":
-            data = _ply_ascii_rows(path, f, name, count, [p for p, _ in props])
+            data = _ply_ascii_rows(path, f, name, count, props)
         else:
             dtype = np.dtype([(p, _PLY_FORMATS[fmt] + t) for p, t in props])
             held = _bytes_left(f)
@@ -441,22 +440,22 @@ def _ply_vertex(path: Path, f, fmt: str, elements: list) -> np.ndarray:
     raise CloudFileError(f"{path}: PLY has no 'vertex' element")
 
 
-def _ply_ascii_rows(path: Path, f, name: str, count: int, props: list[str]) -> np.ndarray:
-    """`count` text rows of exactly len(props) numbers each, as float64 columns (every PLY type is a number in text)."""
+def _ply_ascii_rows(path: Path, f, name: str, count: int, props: list[tuple[str, str]]) -> np.ndarray:
+    """`count` text rows of exactly len(props) numbers each, each parsed as its declared type (as plyfile does)."""
+    dtype = np.dtype([(p, t) for p, t in props])
     rows = []
     for i in range(count):
         line = f.readline()
         if not line:
             raise _cut_short(path, count, i, f"{name!r} rows")
-        words = line.split()
-        if len(words) != len(props):
+        text = line.decode("ascii", errors="replace")
+        if len(text.split()) != len(props):
             raise CloudFileError(
-                f"{path}: PLY {name!r} row {i + 1} has {len(words)} values, the header declares {len(props)} "
+                f"{path}: PLY {name!r} row {i + 1} has {len(text.split())} values, the header declares {len(props)} "
                 f"(and {count} rows)"
             )
-        rows.append(words)
-    table = np.array(rows, dtype=np.float64).reshape(count, len(props))
-    return np.ascontiguousarray(table).view(np.dtype([(p, "f8") for p in props])).reshape(count)
+        rows.append(text)
+    return np.loadtxt(rows, dtype=dtype, ndmin=1) if rows else np.zeros(0, dtype)
 
 
 # ---------------------------------------------------------------- writing
