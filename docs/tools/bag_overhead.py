@@ -1,0 +1,89 @@
+"""What `triplet-normal bag` costs beyond the estimator, per full 640x480 frame.
+
+Run from the repository root: .venv/bin/python docs/tools/bag_overhead.py [--frames N] [--storage mcap|sqlite3]
+
+Writes a bag of N frames shaped like the shipped Kinect frames (x y z rgb FLOAT32 as PCL publishes them, 16 bytes a
+point, 480 x 640, a std_msgs/String between frames) whose xyz are all NaN, so the command skips the estimator, as
+the node does for a cloud without a finite point, and everything else is the real work: reading and decoding each
+frame, encoding the output (every point's normal fields), writing the segments and merging them into OUT. The run
+is in this process, after torch is imported; the per-frame figure is what the bag command adds to the estimator's
+own time on a frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from rosbags.rosbag2 import StoragePlugin, Writer
+
+import triplet_normal_ros.core.estimator  # noqa: F401  (torch is imported before the clock starts)
+from triplet_normal_ros.cli.main import main
+from triplet_normal_ros.io.bags import TYPESTORE
+
+SAMPLES = Path(__file__).resolve().parents[2] / "triplet_normal_ros" / "sample_data"
+FRAMES = ("frame_20121214T142255", "table_scene_mug")
+TOPIC = "/camera/depth_registered/points"
+
+
+def frame_cloud(name: str, stamp_ns: int):
+    """One shipped frame's layout and colours as a rosbags PointCloud2, every xyz NaN: little-endian, 480 x 640."""
+    with np.load(SAMPLES / f"{name}.npz") as data:
+        h, w = data["x"].shape
+        packed = np.empty((h, w), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
+        for key in ("x", "y", "z"):
+            packed[key] = np.nan
+        packed["rgb"] = data["rgb"]
+    field = TYPESTORE.types["sensor_msgs/msg/PointField"]
+    time_msg = TYPESTORE.types["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+    return TYPESTORE.types["sensor_msgs/msg/PointCloud2"](
+        header=TYPESTORE.types["std_msgs/msg/Header"](stamp=time_msg, frame_id="camera_depth_optical_frame"),
+        height=h,
+        width=w,
+        fields=[field(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate(("x", "y", "z", "rgb"))],
+        is_bigendian=False,
+        point_step=16,
+        row_step=16 * w,
+        data=packed.view(np.uint8).reshape(-1),
+        is_dense=False,
+    )
+
+
+def write_input(path: Path, storage: str, frames: int) -> None:
+    clouds = [frame_cloud(FRAMES[i % 2], 10**9 * (i + 1)) for i in range(frames)]
+    string = TYPESTORE.types["std_msgs/msg/String"]
+    with Writer(path, version=9, storage_plugin=StoragePlugin[storage.upper()]) as writer:
+        points = writer.add_connection(TOPIC, "sensor_msgs/msg/PointCloud2", typestore=TYPESTORE)
+        chatter = writer.add_connection("/chatter", "std_msgs/msg/String", typestore=TYPESTORE)
+        for i, cloud in enumerate(clouds):
+            writer.write(points, 10**8 * (i + 1), TYPESTORE.serialize_cdr(cloud, "sensor_msgs/msg/PointCloud2"))
+            text = TYPESTORE.serialize_cdr(string(data=str(i)), "std_msgs/msg/String")
+            writer.write(chatter, 10**8 * (i + 1) + 1, text)
+
+
+def main_tool() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=20)
+    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        write_input(Path(tmp) / "in", args.storage, args.frames)
+        size_in = sum(p.stat().st_size for p in Path(tmp, "in").iterdir()) / 1e6
+        start = time.perf_counter()
+        status = main(["bag", f"{tmp}/in", f"{tmp}/out", "--topic", TOPIC, "--method", "pca", "--device", "cpu"])
+        seconds = time.perf_counter() - start
+        size_out = sum(p.stat().st_size for p in Path(tmp, "out").iterdir()) / 1e6
+    if status:
+        sys.exit(status)
+    print("| storage | frames | IN (MB) | OUT (MB) | bag command (s) | per frame (ms) |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    per_frame = seconds / args.frames * 1e3
+    print(f"| {args.storage} | {args.frames} | {size_in:.0f} | {size_out:.0f} | {seconds:.2f} | {per_frame:.0f} |")
+
+
+if __name__ == "__main__":
+    main_tool()
