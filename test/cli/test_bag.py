@@ -140,6 +140,17 @@ def test_converts_storage_and_writes_only_the_output_with_no_copy(tmp_path: Path
         assert_normals_match(record, source_record)
 
 
+def test_no_orient_keeps_the_estimators_signs(tmp_path: Path, capsys) -> None:
+    msg = cloud(scattered_points(2000, seed=6), 3)
+    source = write_bag(tmp_path / "in", "sqlite3", [Record("/points", CLOUD, 3, msg)])
+    run_ok(capsys, [source, tmp_path / "out", "--topic", "/points", "--no-copy", "--no-orient", *PCA])
+    (got,) = read_bag(tmp_path / "out")
+    normals, _ = NormalEstimator(method="pca", radius=RADIUS, device="cpu").estimate(read_xyz(msg), shape=(1, 2000))
+    np.testing.assert_array_equal(np.stack([read_field(got.msg, f"normal_{a}") for a in "xyz"], axis=1), normals)
+    oriented, _ = expected(msg)
+    assert (oriented != normals).any()  # orientation would have flipped some: the option made a difference
+
+
 def test_hybrid_matches_the_estimator(tmp_path: Path, capsys) -> None:
     msg = cloud(organized_points(*SHAPE), 42, height=SHAPE[0])
     source = write_bag(tmp_path / "in", "mcap", [Record("/cam/points", CLOUD, 7, msg)])
