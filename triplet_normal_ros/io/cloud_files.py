@@ -10,6 +10,8 @@ import os
 import re
 import struct
 import sys
+import tokenize
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -167,27 +169,46 @@ def _load_text_columns(path: Path, n: int) -> np.ndarray:
 
 
 def _read_npy(path: Path) -> CloudFile:
-    """Header first (dtype, shape, size against the file's length), so a cut file and a pickle get their own line."""
+    """Header first (dtype, shape, size against the file's length), so a cut file and a pickle get their own line;
+    then the data straight from the file (never np.load, which would parse the header a second time)."""
     with path.open("rb") as f:
-        try:
-            fmt = np.lib.format
-            version = fmt.read_magic(f)
-            shape, _, dtype = (fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0)(f)
-        except ValueError:
-            raise CloudFileError(f"{path}: not a .npy file (no valid NumPy header; empty or cut short?)") from None
-        held = path.stat().st_size - f.tell()
+        shape, fortran, dtype = _npy_header(path, f)
+        _check_npy_array(path, shape, dtype)
+        rows, columns = shape
+        held = _bytes_left(f)
+        if held < dtype.itemsize * columns * rows:
+            raise _cut_short(path, rows, held // (dtype.itemsize * columns))
+        flat = np.frombuffer(f.read(dtype.itemsize * columns * rows), dtype, rows * columns)
+    array = flat.reshape(shape, order="F" if fortran else "C")
+    normals = _float64(array[:, 3:6]) if columns >= 6 else None
+    return CloudFile(_float64(array[:, :3]), normals)
+
+
+def _npy_header(path: Path, f) -> tuple[tuple[int, ...], bool, np.dtype]:
+    """(shape, fortran_order, dtype) from a version 1, 2 or 3 header; every defect is one line."""
+    fmt = np.lib.format
+    try:
+        version = fmt.read_magic(f)
+    except ValueError:
+        raise CloudFileError(f"{path}: not a .npy file (no valid NumPy header; empty or cut short?)") from None
+    if version not in ((1, 0), (2, 0), (3, 0)):
+        major, minor = version
+        raise CloudFileError(f"{path}: unsupported .npy format version {major}.{minor} (numpy writes 1.0 to 3.0)")
+    try:
+        with warnings.catch_warnings():  # a Python 2 header ('3L') parses, with a warning that is no use to a user
+            warnings.simplefilter("ignore", UserWarning)
+            return (fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0)(f)
+    except (ValueError, TypeError, SyntaxError, tokenize.TokenError):  # numpy tokenizes a damaged header itself
+        raise CloudFileError(f"{path}: not a .npy file (no valid NumPy header; empty or cut short?)") from None
+
+
+def _check_npy_array(path: Path, shape: tuple[int, ...], dtype: np.dtype) -> None:
     if dtype.hasobject:
         raise CloudFileError(f"{path}: holds Python objects, not numbers (pickled .npy files are refused)")
     if dtype.kind not in "fiu" or dtype.fields is not None:
         raise CloudFileError(f"{path}: expected a numeric array, got dtype {dtype}")
     if len(shape) != 2 or shape[1] < 3:
         raise CloudFileError(f"{path}: expected an (N, 3) or (N, >=3) array, got shape {shape}")
-    row_bytes = dtype.itemsize * shape[1]
-    if held < row_bytes * shape[0]:
-        raise _cut_short(path, shape[0], held // row_bytes)
-    array = np.load(path, allow_pickle=False)
-    normals = _float64(array[:, 3:6]) if array.shape[1] >= 6 else None
-    return CloudFile(_float64(array[:, :3]), normals)
 
 
 def _pypcd4():
@@ -293,7 +314,11 @@ def _pcd_checked_header(path: Path, values: dict[str, list[str]]) -> _PcdHeader:
     if encoding not in _PCD_ENCODINGS:
         raise CloudFileError(f"{path}: unsupported PCD DATA {encoding!r} (use {', '.join(_PCD_ENCODINGS)})")
     layout = zip(types, sizes, counts, strict=True)
-    dtype = np.dtype([(f"f{i}", "<" + _PCD_TYPES[(t, n)], (c,)) for i, (t, n, c) in enumerate(layout)])
+    try:
+        dtype = np.dtype([(f"f{i}", "<" + _PCD_TYPES[(t, n)], (c,)) for i, (t, n, c) in enumerate(layout)])
+    except ValueError:  # numpy holds a point (a dtype) of at most 2^31-1 bytes
+        total = sum(n * c for n, c in zip(sizes, counts, strict=True))
+        raise CloudFileError(f"{path}: PCD point of {total} bytes (SIZE x COUNT) is too large to read") from None
     return _PcdHeader(fields, dtype, width, height, points, encoding)
 
 
@@ -371,11 +396,7 @@ def _read_ply(path: Path) -> CloudFile:
         raise CloudFileError(f"{path}: PLY vertex has no property {', '.join(missing)}")
     points = np.stack([_float64(vertex[c]) for c in "xyz"], axis=1)
     normals = next(
-        (
-            np.stack([_float64(vertex[c]) for c in trio], axis=1)
-            for trio in _NORMAL_NAMES
-            if set(trio) <= set(names)
-        ),
+        (np.stack([_float64(vertex[c]) for c in trio], axis=1) for trio in _NORMAL_NAMES if set(trio) <= set(names)),
         None,
     )
     return CloudFile(points, normals)
@@ -406,14 +427,18 @@ def _ply_header(path: Path, f) -> tuple[str, list[tuple[str, int, list[tuple[str
                 raise CloudFileError(f"{path}: PLY element {words[1]!r} has count {words[2][:20]!r}, not an integer")
             elements.append((words[1], int(words[2]), []))
         elif words[0] == "property" and elements:
-            elements[-1][2].append(_ply_property(path, words))
+            element, _, props = elements[-1]
+            prop = _ply_property(path, words)
+            if any(prop[0] == p for p, _ in props):
+                raise CloudFileError(f"{path}: PLY element {element!r} declares property {prop[0]!r} twice")
+            props.append(prop)
         else:
             raise CloudFileError(f"{path}: malformed PLY header line {line.strip()[:60]!r}")
     raise CloudFileError(f"{path}: PLY header has no 'end_header'")
 
 
 def _ply_property(path: Path, words: list[str]) -> tuple[str, str | None]:
-    if words[1] == "list" and len(words) == 5:
+    if len(words) == 5 and words[1] == "list":
         return words[4], None
     if len(words) == 3 and words[1] in _PLY_TYPES:
         return words[2], _PLY_TYPES[words[1]]
