@@ -298,7 +298,7 @@ class SoakResult:
     pool: list[PoolCloud]
     flood: Flood
     rss: RssFigures
-    warmup_s: float
+    warmup_s: float  # on the RSS samples' clock: about 1 s of the idle node, then the flood
     totals: NodeTotals
     exit_code: int | None
     exit_s: float
@@ -345,8 +345,12 @@ def soak(
     seconds: float,
     rate_hz: float,
     tick: Callable[[float], None] | None = None,
+    warmup_s: float | None = None,
 ) -> SoakResult:
-    """Flood the node (``node_pid``) for ``seconds``, then ``stop()`` it (SIGINT) while it is still overloaded."""
+    """Flood the node (``node_pid``) for ``seconds``, then ``stop()`` it (SIGINT) while it is still overloaded.
+
+    The first ``warmup_s`` seconds of flooding (default: WARMUP_FRACTION of them) are left out of the flatness figures.
+    """
     with RssSampler(node_pid) as sampler:
         sampler_start = time.monotonic()
         time.sleep(2 * RSS_EVERY_S)  # the idle node's RSS first
@@ -355,7 +359,7 @@ def soak(
         totals = last_totals(log())
         code, exit_s = stop()
     client.drain(1.0)  # answers already on the wire
-    warmup_s = flood_start + WARMUP_FRACTION * seconds
+    warmup_s = flood_start + (WARMUP_FRACTION * seconds if warmup_s is None else warmup_s)
     samples = [(t, mb) for t, mb in sampler.samples if t <= flood_start + flood.send_s]
     if totals is None:
         raise RuntimeError("the node logged no statistics line during the soak")
