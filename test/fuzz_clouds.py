@@ -275,3 +275,24 @@ def expected_xyz(msg: PointCloud2) -> np.ndarray:
     first = {axis: next(f for f in msg.fields if f.name == axis) for axis in "xyz"}
     columns = [[v[0] for v in field_values(msg, first[axis])] for axis in "xyz"]
     return np.array(columns, dtype=np.float64).T.reshape(-1, 3)
+
+
+def answer_too_wide(msg: PointCloud2) -> str | None:
+    """The node's answer is packed: every field but the normal ones, then 16 bytes of normals and curvature. Its
+    point_step and row_step are uint32 too, so an answer that would not fit is refused ("uint32" in the message)."""
+    kept = [f for f in msg.fields if f.name not in NORMALS]
+    step = sum(_size(f.datatype) * f.count for f in kept) + 4 * len(NORMALS)
+    return "uint32" if max(step, msg.width * step) > UINT32_MAX else None
+
+
+def node_refusal(msg: PointCloud2) -> str | None:
+    """Why the node must refuse this cloud (a fragment of the CloudFormatError), or None when it must answer it.
+
+    An empty cloud gets an empty answer with the normal fields (only its field declarations can be wrong); any other
+    is read with read_xyz's rules. Either way the packed answer must fit uint32.
+    """
+    if msg.height * msg.width == 0:
+        reason = expected_error(msg, need_xyz=False) if msg.fields else None
+    else:
+        reason = expected_error(msg)
+    return reason or answer_too_wide(msg)

@@ -159,7 +159,7 @@ def _xyz_views(layout: _Layout) -> list[np.ndarray]:
 
 
 def read_xyz(msg: PointCloud2) -> np.ndarray:
-    """(height*width, 3) float64 xyz in row-major point order (row r, column c -> r*width + c).
+    """(height*width, 3) float64 xyz in row-major point order (row r, column c -> r*width + c); every NaN is quiet.
 
     Raises CloudFormatError for: missing x/y/z; x/y/z not FLOAT32/FLOAT64; data shorter than height*row_step;
     point_step smaller than the fields' extent; row_step < width*point_step; unknown datatype; field count < 1.
@@ -169,6 +169,8 @@ def read_xyz(msg: PointCloud2) -> np.ndarray:
     # value becomes a quiet NaN, which is exactly what we want, so only that flag is ignored, only for this cast.
     with np.errstate(invalid="ignore"):
         xyz = views[0].astype(np.float64) if len(views) == 1 else np.concatenate(views, axis=2, dtype=np.float64)
+    if any(v.dtype.itemsize == 8 for v in views):  # FLOAT64 bits are copied as they are: quiet their signalling NaNs
+        xyz[np.isnan(xyz)] = np.nan  # (else every later subtraction warns 'invalid value', in the node's log too)
     return xyz.reshape(-1, 3)
 
 
