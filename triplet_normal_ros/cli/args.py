@@ -70,3 +70,14 @@ def hybrid_options(args: argparse.Namespace) -> dict[str, Any]:
             raise UsageError(f"--{name} must be a finite {what} >= 0, got {value}")
         options[name] = value
     return options
+
+
+def make_estimator(args: argparse.Namespace, radius: float):
+    """The `NormalEstimator` that the estimator options of `estimate` and `bag` describe (torch is imported here)."""
+    from ..core.estimator import NormalEstimator
+
+    options = {"k": args.k, "checkpoint": args.checkpoint, "device": args.device, "neighbours": args.neighbours}
+    options.update(hybrid_options(args))
+    if args.batch_size is not None:
+        options["batch_size"] = args.batch_size
+    return NormalEstimator(method=args.method, radius=radius, **options)

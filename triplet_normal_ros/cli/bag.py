@@ -49,8 +49,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD, help=f"default {DEFAULT_METHOD}, as the node")
     p.add_argument("--radius", type=float, default=DEFAULT_RADIUS, metavar="R", help=f"in m (default {DEFAULT_RADIUS})")
     p.add_argument(
-        "--k", type=int, metavar="K", help=f"learned/hybrid: points per patch (default: the checkpoint's); pca: cap "
-        f"(default {PCA_DEFAULT_K})"
+        "--k",
+        type=int,
+        metavar="K",
+        help=f"learned/hybrid: points per patch (default: the checkpoint's); pca: cap (default {PCA_DEFAULT_K})",
     )
     p.add_argument("--checkpoint", metavar="C", help="safetensors checkpoint or shipped name (default, lite)")
     p.add_argument("--device", default="auto", metavar="D", help="auto, cpu, cuda or cuda:N (default auto)")
@@ -118,7 +120,7 @@ def _convert(args: argparse.Namespace, bag) -> str:
         args.output, storage, topics, _job(args, bag, output_topic, storage),
         overwrite=args.overwrite, resume=args.resume, segment_seconds=args.segment_seconds,
     ) as writer:  # fmt: skip
-        estimator = _make_estimator(args)
+        estimator = checks.make_estimator(args, args.radius)
         stream = bag.messages(None if copied else {args.topic})
         total = bag.count(args.topic)
         clouds, skipped = _estimate_all(args, stream, writer, estimator, (output_topic, CLOUD_TYPE), total)
@@ -234,13 +236,3 @@ def _job(args: argparse.Namespace, bag, output_topic: str, storage: str) -> dict
         "neighbours": args.neighbours,
         "viewpoint": None if args.no_orient else list(args.viewpoint),
     }
-
-
-def _make_estimator(args: argparse.Namespace):
-    from ..core.estimator import NormalEstimator
-
-    options = {"k": args.k, "checkpoint": args.checkpoint, "device": args.device, "neighbours": args.neighbours}
-    options.update(checks.hybrid_options(args))
-    if args.batch_size is not None:
-        options["batch_size"] = args.batch_size
-    return NormalEstimator(method=args.method, radius=args.radius, **options)

@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     radius = args.radius or (args.radius_rel or RADIUS_FRACTION) * bbox_diagonal(cloud.points)
     if not radius > 0:
         raise UsageError(f"{args.input}: the cloud has zero extent, so --radius-rel gives radius 0; pass --radius")
-    estimator = _make_estimator(args, radius)
+    estimator = checks.make_estimator(args, radius)
     start = time.perf_counter()
     normals, curvature = estimate_with_progress(estimator, cloud.points, query, shape=(cloud.height, cloud.width))
     seconds = time.perf_counter() - start
@@ -140,13 +140,3 @@ def _output_path(args: argparse.Namespace) -> str:
     if out.exists():
         raise UsageError(f"{out} already exists; pass --out {out} to overwrite it, or another --out")
     return str(out)
-
-
-def _make_estimator(args: argparse.Namespace, radius: float):
-    from ..core.estimator import NormalEstimator
-
-    options = {"k": args.k, "checkpoint": args.checkpoint, "device": args.device, "neighbours": args.neighbours}
-    options.update(checks.hybrid_options(args))
-    if args.batch_size is not None:
-        options["batch_size"] = args.batch_size
-    return NormalEstimator(method=args.method, radius=radius, **options)
