@@ -20,6 +20,8 @@ from typing import Any
 
 import pytest
 
+from triplet_normal_ros.ros.transport import PROFILE_ENV, choose_profile
+
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = "triplet_normal_ros"
 COLCON = Path(sys.executable).with_name("colcon")
@@ -50,6 +52,12 @@ def pytest_configure(config: pytest.Config) -> None:
     for name, folder in PRIVATE_CACHES.items():
         (TEST_CACHE / folder).mkdir(parents=True, exist_ok=True)
         _ENV_PATCH.setenv(name, str(TEST_CACHE / folder))
+    # This process plays the camera driver. Fast DDS reads its profile once per process, at the first participant,
+    # so the shipped one is set here, before any test's rclpy context (docs/NODE.md, Transport).
+    environ = dict(os.environ)
+    choose_profile(environ)
+    if PROFILE_ENV in environ:
+        _ENV_PATCH.setenv(PROFILE_ENV, environ[PROFILE_ENV])
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
@@ -135,8 +143,9 @@ class NodeProcess:
         for name, target in remaps.items():
             args += ["-r", f"{name}:={target}"]
         self._log = self.log_path.open("w")
+        node_env = {k: v for k, v in env.items() if k != PROFILE_ENV}  # the node picks its Fast DDS profile itself
         self.proc = subprocess.Popen(
-            args, env=dict(env), stdout=self._log, stderr=subprocess.STDOUT, cwd=log_path.parent
+            args, env=node_env, stdout=self._log, stderr=subprocess.STDOUT, cwd=log_path.parent
         )
 
     @property

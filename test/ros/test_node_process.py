@@ -41,9 +41,10 @@ SHUTDOWN_S = 2.0
 
 @pytest.fixture(scope="module")
 def pca_node(install_prefix: Path, ros_env: dict[str, str], tmp_path_factory) -> Iterator[NodeProcess]:
-    """One node for the module: pca, a reliable input override (full frames are ~5 MB; see README, QoS)."""
+    """One node for the module: pca, its default best-effort input (full frames arrive through the shipped Fast DDS
+    profile, which the node and this process both load; README, QoS)."""
     folder = tmp_path_factory.mktemp("node")
-    with running_node(install_prefix, ros_env, folder, PCA_PARAMS, {"input": IN, "output": OUT}, (IN,)) as node:
+    with running_node(install_prefix, ros_env, folder, PCA_PARAMS, {"input": IN, "output": OUT}) as node:
         yield node
 
 
@@ -265,12 +266,12 @@ def test_sigint_during_an_estimate_exits_cleanly(start_node, frame: Frame) -> No
     """A node of its own (the module's shared one must outlive every order of the tests). A learned full frame takes
     minutes, so it is surely in flight when SIGINT arrives."""
     remaps = {"input": "/tn_int/in", "output": "/tn_int/out"}
-    node = start_node({"method": "learned", "device": "cpu"}, remaps, (remaps["input"],))
+    node = start_node({"method": "learned", "device": "cpu"}, remaps)
     assert node.wait_for_log("ready:", 60), node.log
     with ProbeClient("/tn_int/in", "/tn_int/out") as c:
         assert c.wait_for_node(30)
         c.send(frame.to_cloud(c.header()))
-        c.spin_for(1.5)  # reliable delivery of ~5 MB, then the worker is inside estimate()
+        c.spin_for(1.5)  # delivery of ~5 MB through shared memory, then the worker is inside estimate()
     code, seconds = node.stop(signal.SIGINT)
     assert code == 0, node.log[-3000:]
     assert seconds < SHUTDOWN_S, f"took {seconds:.2f} s"

@@ -39,6 +39,7 @@ from .health import assess, settings_values
 from .mailbox import Mailbox
 from .params import K_METHOD_DEFAULT, SPECS, NodeSettings, ParamSpec, apply, needs_reload, validate_all
 from .stats import ProcessingStats
+from .transport import ProfileChoice, choose_profile
 
 NODE_NAME = "triplet_normal"
 #: Output history: reliable, but shallow, so a slow subscriber cannot make the node hoard clouds.
@@ -290,11 +291,13 @@ def main(args: list[str] | None = None) -> NoReturn:
 def _run(args: list[str] | None) -> int:
     stop = threading.Event()
     _install_stop_handlers(stop)
+    profile = choose_profile()  # before rclpy.init: Fast DDS reads its profile when the participant is created
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as error:  # rcl rejects malformed --ros-args with its own exception type
         print(f"[FATAL] [{NODE_NAME}]: cannot start: {error}", file=sys.stderr)
         return 1
+    _log_transport(profile)
     node: TripletNormalNode | None = None
     try:
         node = TripletNormalNode()
@@ -310,6 +313,12 @@ def _run(args: list[str] | None) -> int:
         if node is not None:
             _shut_down(node)
         rclpy.try_shutdown()
+
+
+def _log_transport(profile: ProfileChoice) -> None:
+    """Say which DDS profile carries the clouds: full-size best-effort clouds depend on it (docs/NODE.md, Transport)."""
+    line = profile.describe(rclpy.get_rmw_implementation_identifier())
+    (get_logger(NODE_NAME).warning if profile.warning else get_logger(NODE_NAME).info)(line)
 
 
 def _shut_down(node: TripletNormalNode) -> None:

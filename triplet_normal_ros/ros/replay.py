@@ -1,7 +1,9 @@
 """Replay the shipped Kinect frames into a running node and collect its answers, from a separate process.
 
 Used by ``make demo`` (and, extended under test/ros/, by the cross-process tests). :class:`ReplayClient` owns its own
-rclpy context, so it can live in a test process (or beside other nodes) without touching the default context.
+rclpy context, so it can live in a test process (or beside other nodes) without touching the default context. It plays
+the camera driver: with ``SENSOR_INPUT`` it publishes best effort as drivers do, and like the node it loads the shipped
+Fast DDS profile, which a best-effort publisher of full-size clouds needs (docs/NODE.md, Transport).
 """
 
 from __future__ import annotations
@@ -20,11 +22,12 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
-from rclpy.qos import QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import PointCloud2
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
 from ..io.pointcloud2 import make_cloud
+from .transport import choose_profile
 
 #: The shipped frames, as package data (the same lookup from a checkout, a venv or a colcon install).
 SAMPLE_DIR = Path(str(resources.files("triplet_normal_ros") / "sample_data"))
@@ -32,6 +35,13 @@ SAMPLE_DIR = Path(str(resources.files("triplet_normal_ros") / "sample_data"))
 FRAMES = ("frame_20121214T142255", "table_scene_mug")
 #: frame_id of replayed clouds: the optical frame, where the sensor (the default viewpoint) is the origin.
 FRAME_ID = "camera_depth_optical_frame"
+#: pcl::PointXYZRGB as a PointCloud2: 16-byte aligned xyz and rgb in 32-byte points.
+PCL_POINT_STEP = 32
+PCL_FIELDS = (("x", 0), ("y", 4), ("z", 8), ("rgb", 16))
+#: Input publisher QoS. Reliable matches a best-effort subscription (the node's default) and a reliable override alike.
+RELIABLE_INPUT = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE)
+#: What camera and LiDAR drivers publish with: best effort, keep last 5. Matches only a best-effort subscription.
+SENSOR_INPUT = qos_profile_sensor_data
 
 
 @dataclass(frozen=True)
@@ -53,6 +63,18 @@ class Frame:
         fields = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "rgb": self.rgb.reshape(-1).view(np.float32)}
         return make_cloud(header, fields, h, w)
 
+    def to_pcl_cloud(self, header: Header) -> PointCloud2:
+        """The layout pcl_conversions publishes for pcl::PointXYZRGB: x, y, z, pad, rgb, pad to 32 bytes (9.8 MB)."""
+        h, w = self.shape
+        points = np.zeros((h * w, PCL_POINT_STEP // 4), np.float32)
+        points[:, :3] = self.xyz.reshape(-1, 3)
+        points[:, 4] = self.rgb.reshape(-1).view(np.float32)
+        cloud = make_cloud(header, {"x": points[:, 0]}, h, w)  # header, shape and is_dense, then PCL's layout
+        cloud.fields = [PointField(name=n, offset=o, datatype=PointField.FLOAT32, count=1) for n, o in PCL_FIELDS]
+        cloud.point_step, cloud.row_step = PCL_POINT_STEP, PCL_POINT_STEP * w
+        cloud.data = points.tobytes()
+        return cloud
+
     def rgb_image(self) -> np.ndarray:
         """(h, w, 3) uint8 colour image from the packed 0x00RRGGBB values."""
         packed = self.rgb.astype(np.uint32)
@@ -72,16 +94,24 @@ def load_frame(name: str) -> Frame:
 class ReplayClient:
     """Publishes clouds to the node's input and waits for each answer on its output, matched by header stamp."""
 
-    def __init__(self, input_topic: str, output_topic: str, node_name: str = "triplet_normal") -> None:
+    def __init__(
+        self,
+        input_topic: str,
+        output_topic: str,
+        node_name: str = "triplet_normal",
+        input_qos: QoSProfile = RELIABLE_INPUT,
+    ) -> None:
+        choose_profile()  # as the node does, before this process's first participant; the user's own choice stands
         self._context = Context()
         rclpy.init(context=self._context)
         self.node = Node("triplet_normal_replay", context=self._context)
         self._executor = SingleThreadedExecutor(context=self._context)
         self._executor.add_node(self.node)
-        reliable = QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE)
-        self._publisher = self.node.create_publisher(PointCloud2, input_topic, reliable)
+        self._publisher = self.node.create_publisher(PointCloud2, input_topic, input_qos)
         self._answers: dict[tuple[int, int], PointCloud2] = {}
-        self._subscription = self.node.create_subscription(PointCloud2, output_topic, self._on_output, reliable)
+        self._subscription = self.node.create_subscription(
+            PointCloud2, output_topic, self._on_output, QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE)
+        )
         self._params = AsyncParameterClient(self.node, node_name)
 
     def _on_output(self, msg: PointCloud2) -> None:

@@ -1,0 +1,89 @@
+"""Which Fast DDS profile a process of ours runs with: the shipped large-data profile, unless the user chose one.
+
+Fast DDS's default shared-memory segment (512 kB per process) loses best-effort clouds above about 0.5 MB, so a
+640x480 cloud from a camera driver never arrives (docs/RESULTS.md, "Full-size clouds over DDS"). The shipped profile,
+``config/fastdds_large_data.xml``, gives the segment 32 MB. Fast DDS reads ``FASTDDS_DEFAULT_PROFILES_FILE`` once per
+process, when rclpy.init creates the first participant, so :func:`choose_profile` must run before that. It changes
+nothing when the user has chosen: their own ``FASTDDS_DEFAULT_PROFILES_FILE``, a ``DEFAULT_FASTDDS_PROFILES.xml`` in the
+working directory (which Fast DDS loads by itself), or ``TRIPLET_NORMAL_FASTDDS_PROFILE=off``. No rclpy here: the
+node, the demo's replay client and the tests' process all call it.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import MutableMapping
+from dataclasses import dataclass
+from pathlib import Path
+
+PACKAGE = "triplet_normal_ros"
+PROFILE_NAME = "fastdds_large_data.xml"
+#: What Fast DDS 3 (rmw_fastrtps_cpp 9.x, Kilted) reads for its XML profiles.
+PROFILE_ENV = "FASTDDS_DEFAULT_PROFILES_FILE"
+#: ``off`` leaves Fast DDS at its defaults.
+OPT_OUT_ENV = "TRIPLET_NORMAL_FASTDDS_PROFILE"
+#: Fast DDS also loads this file from the working directory, unless SKIP_DEFAULT_XML_FILE=1.
+CWD_PROFILE = "DEFAULT_FASTDDS_PROFILES.xml"
+
+
+@dataclass(frozen=True)
+class ProfileChoice:
+    """The profile in force and why; ``warning`` when full-size best-effort clouds will be lost."""
+
+    path: str | None
+    source: str
+    warning: bool = False
+
+    def describe(self, rmw: str) -> str:
+        """One log line; ``rmw`` is the implementation rclpy loaded (a profile only matters to Fast DDS)."""
+        if not rmw.startswith("rmw_fastrtps"):
+            return f"transport: {rmw}; Fast DDS profiles do not apply"
+        if self.path is None:
+            return f"transport: Fast DDS defaults ({self.source}); best-effort clouds above about 0.5 MB will be lost"
+        return f"transport: Fast DDS profile {self.path} ({self.source})"
+
+
+def _share_dir() -> Path | None:
+    """This package's share/ folder through the ament index (a sourced colcon install), if there is one."""
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
+        return Path(get_package_share_directory(PACKAGE))
+    except (ImportError, PackageNotFoundError, OSError):  # OSError: AMENT_PREFIX_PATH is not set
+        return None
+
+
+def shipped_profile() -> Path | None:
+    """The profile from this package's share/ (ament index, or beside this install) or from a source checkout."""
+    here = Path(__file__).resolve()
+    share = _share_dir()
+    candidates = [share / "config" / PROFILE_NAME] if share is not None else []
+    if len(here.parents) > 5:  # <prefix>/lib/pythonX.Y/site-packages/triplet_normal_ros/ros/transport.py
+        candidates.append(here.parents[5] / "share" / PACKAGE / "config" / PROFILE_NAME)
+    candidates.append(here.parents[2] / "config" / PROFILE_NAME)  # a checkout: <repo>/triplet_normal_ros/ros/
+    return next((p for p in candidates if p.is_file()), None)
+
+
+def _users_choice(environ: MutableMapping[str, str], cwd: Path) -> ProfileChoice | None:
+    if environ.get(OPT_OUT_ENV, "").lower() in ("off", "0", "false", "no"):
+        return ProfileChoice(None, f"{OPT_OUT_ENV}={environ[OPT_OUT_ENV]}", warning=True)
+    if environ.get(PROFILE_ENV):
+        return ProfileChoice(environ[PROFILE_ENV], f"yours, from {PROFILE_ENV}")
+    if environ.get("SKIP_DEFAULT_XML_FILE") != "1" and (cwd / CWD_PROFILE).is_file():
+        return ProfileChoice(str(cwd / CWD_PROFILE), "yours, from the working directory")
+    return None
+
+
+def choose_profile(environ: MutableMapping[str, str] | None = None, cwd: Path | None = None) -> ProfileChoice:
+    """Point ``environ`` (the process environment) at the shipped profile unless the user chose; say what is used."""
+    environ = os.environ if environ is None else environ
+    choice = _users_choice(environ, Path.cwd() if cwd is None else cwd)
+    if choice is not None:
+        return choice
+    path = shipped_profile()
+    if path is None:
+        return ProfileChoice(None, f"the shipped {PROFILE_NAME} was not found", warning=True)
+    environ[PROFILE_ENV] = str(path)
+    return ProfileChoice(
+        str(path), "shipped; a best-effort driver needs it too for clouds over 0.5 MB, see docs/NODE.md, Transport"
+    )
