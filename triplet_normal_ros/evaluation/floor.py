@@ -185,13 +185,15 @@ def _karcher(n: np.ndarray, weights: np.ndarray, normals: np.ndarray) -> np.ndar
 
 
 def bayes_normals(weights: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The posterior-optimal unit normals (Q, 3) and their expected squared angles (Q,), for (Q, F) face weights on
-    the faces' normals (F, 3). Only faces above NEGLIGIBLE take part: the rest move the loss by less than 1e-11."""
+    """The posterior-optimal unit normals (Q, 3) and their expected squared angles (Q,), for (Q, F) posterior weights
+    on shared candidate normals (F, 3) (the faces) or on per-query ones (Q, F, 3) (e.g. a dense surface sample's).
+    Only weights above NEGLIGIBLE take part: the rest move the loss by less than 1e-11."""
     keep = max(int((weights > NEGLIGIBLE).sum(axis=1).max(initial=1)), 1)
     order = np.argsort(-weights, axis=1)[:, :keep]
     w = np.take_along_axis(weights, order, axis=1)
     w = np.where(w > NEGLIGIBLE, w, 0.0)
-    candidates = normals[order]  # (Q, K, 3), heaviest first
+    shared = normals.ndim == 2
+    candidates = normals[order] if shared else np.take_along_axis(normals, order[..., None], axis=1)  # heaviest first
     principal = np.linalg.eigh(np.einsum("qf,qfi,qfj->qij", w, candidates, candidates))[1][:, :, -1]
     ends = [_karcher(start, w, candidates) for start in (candidates[:, 0], principal)]
     losses = np.stack([expected_loss(n, w, candidates) for n in ends])
