@@ -104,6 +104,21 @@ def test_right_angle_edge_off_the_bisector_matches_the_closed_form(a: float, b: 
     assert expected[0] == pytest.approx(w_x * w_z * np.pi**2 / 4, rel=1e-9)
 
 
+def test_per_query_candidates_give_the_shared_answer() -> None:
+    """The dense-sample path (each query its own candidates, docs/tools/smooth_floor.py) is the same estimator."""
+    rng = np.random.default_rng(4)
+    normals = rng.standard_normal((5, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    weights = rng.dirichlet(np.full(5, 0.5), size=40)
+    shared = fl.bayes_normals(weights, normals)
+    own = fl.bayes_normals(weights, np.broadcast_to(normals, (40, 5, 3)))
+    assert np.abs(np.einsum("ij,ij->i", shared[0], own[0])) == pytest.approx(1.0, abs=1e-12)
+    assert own[1] == pytest.approx(shared[1], abs=1e-15)
+    assert np.all(
+        own[1] <= fl.expected_loss(normals[weights.argmax(axis=1)], weights, np.broadcast_to(normals, (40, 5, 3)))
+    )
+
+
 # ---------------------------------------------------------------- the validation shapes
 
 
