@@ -48,7 +48,7 @@ demo: venv
 	@$(PY) -m triplet_normal_ros.ros.demo --prefix $(WS)/install/triplet_normal_ros --out out
 
 lint: venv
-	$(VENV)/bin/ruff check --config .ci/ruff.toml triplet_normal_ros test
+	$(VENV)/bin/ruff check --config .ci/ruff.toml triplet_normal_ros test docs/tools
 
 # `make test` (CI): lint, then every test, including the `slow` ones (colcon builds, the node as a separate process,
 # training runs, accuracy checks of the shipped checkpoint, eval --quick, CLI subprocesses).
