@@ -39,6 +39,8 @@ PRIVATE_CACHES = {
     "ROS_HOME": "test-ros",  # rcl's file logs (ROS_HOME/log)
 }
 _ENV_PATCH = pytest.MonkeyPatch()
+#: The Fast DDS profile this file set for the test process (empty when the user had chosen one: then nodes keep it).
+_PROFILE_SET_HERE: list[str] = []
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -56,8 +58,9 @@ def pytest_configure(config: pytest.Config) -> None:
     # so the shipped one is set here, before any test's rclpy context (docs/NODE.md, Transport).
     environ = dict(os.environ)
     choose_profile(environ)
-    if PROFILE_ENV in environ:
+    if PROFILE_ENV in environ and PROFILE_ENV not in os.environ:
         _ENV_PATCH.setenv(PROFILE_ENV, environ[PROFILE_ENV])
+        _PROFILE_SET_HERE.append(environ[PROFILE_ENV])
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
@@ -143,7 +146,8 @@ class NodeProcess:
         for name, target in remaps.items():
             args += ["-r", f"{name}:={target}"]
         self._log = self.log_path.open("w")
-        node_env = {k: v for k, v in env.items() if k != PROFILE_ENV}  # the node picks its Fast DDS profile itself
+        # The node picks its Fast DDS profile itself, unless the user chose one for the whole run.
+        node_env = {k: v for k, v in env.items() if not (k == PROFILE_ENV and v in _PROFILE_SET_HERE)}
         self.proc = subprocess.Popen(
             args, env=node_env, stdout=self._log, stderr=subprocess.STDOUT, cwd=log_path.parent
         )
