@@ -194,6 +194,16 @@ def test_refuses_to_overwrite_unless_told(tmp_path: Path, capsys) -> None:
     assert {r[0] for r in read_raw(out)} == {"/points", "/chatter", "/other"}
 
 
+def test_overwrite_refuses_a_symlinked_output_before_any_work(tmp_path: Path, capsys) -> None:
+    source = write_bag(tmp_path / "in", "sqlite3", mixed_records()[:2])
+    run_ok(capsys, [source, tmp_path / "real", "--topic", "/points", *PCA])
+    link = tmp_path / "link"
+    link.symlink_to(tmp_path / "real")
+    line = run_fails(capsys, [source, link, "--topic", "/points", *PCA, "--overwrite"])
+    assert line == f"triplet-normal: error: {link} is a symbolic link; not replacing it (give the real directory)"
+    assert link.is_symlink() and not partial_path(link).exists()
+
+
 @pytest.mark.slow
 def test_resumes_after_ctrl_c(tmp_path: Path, capsys) -> None:
     """Interrupted after its first crash-safe segment, the run keeps its work; --resume finishes the rest."""

@@ -160,6 +160,8 @@ def _estimate_all(args, stream, writer, estimator, output_key: tuple[str, str], 
                     bar.write(warning, file=sys.stderr)
                 bar.update(1)
             writer.write(message.index, outputs)
+        if stop.is_set():  # Ctrl-C after the estimator's last cancel check: still an interruption, not a finished run
+            raise KeyboardInterrupt
     return clouds, skipped
 
 

@@ -106,6 +106,8 @@ class ResumableBagWriter:
             return
         if not self._overwrite:
             raise BagError(f"{self.out} already exists; pass --overwrite to replace it")
+        if self.out.is_symlink():  # replacing it at the end would fail after all the work, or follow the link
+            raise BagError(f"{self.out} is a symbolic link; not replacing it (give the real directory)")
         if not (_is_bag(self.out) or (self.out.is_dir() and not any(self.out.iterdir()))):
             raise BagError(f"{self.out} exists and is not a rosbag2 directory; not replacing it")
 
