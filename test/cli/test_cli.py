@@ -161,6 +161,20 @@ def test_update_section_replaces_only_its_block(tmp_path: Path) -> None:
     assert text.index("BEGIN bench") < text.index("BEGIN train")  # replaced in place, not re-appended
 
 
+def test_eval_sets_rewrites_only_the_chosen_blocks(tmp_path: Path) -> None:
+    """--sets lidar runs the LiDAR scans alone: no PCPNet directory needed, every other block left as it was."""
+    doc = tmp_path / "docs" / "RESULTS.md"
+    for block in ("eval-val", "eval-depth", "eval-lidar", "eval-pcpnet"):
+        update_section(doc, block, "kept")
+    done = run_cli(
+        "eval", "--quick", "--sets", "lidar", "--pcpnet-dir", tmp_path / "absent", "--out", doc,
+        env={"TRIPLET_NORMAL_CACHE": str(tmp_path / "cache")},
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "radius 0.25 m" in read_section(doc, "eval-lidar")
+    assert [read_section(doc, b) for b in ("eval-val", "eval-depth", "eval-pcpnet")] == ["kept"] * 3
+
+
 def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
     pcpnet = tmp_path / "pcpnet"
     pcpnet.mkdir()

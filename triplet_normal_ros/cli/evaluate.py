@@ -4,7 +4,11 @@ import argparse
 from pathlib import Path
 
 from ..core.conventions import RADIUS_FRACTION
+from ..errors import UsageError
 from . import args as checks
+
+#: eval's data sets, in the order they run: validation shapes, simulated depth frames and LiDAR scans, PCPNet.
+SETS = ("val", "depth", "lidar", "pcpnet")
 
 DESCRIPTION = f"""MSAE (rad²) and RMSE (degrees) of the learned estimator, PCA at the same radius
 ({RADIUS_FRACTION:.0%} of the bbox diagonal) and PCA at its best radius per cloud (an oracle over 1-10%), on the
@@ -28,6 +32,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", type=Path, metavar="MD", help="results markdown to update (e.g. docs/RESULTS.md)")
     p.add_argument("--quick", action="store_true", help="a small subset, for tests (not for reporting)")
+    p.add_argument(
+        "--sets",
+        default=",".join(SETS),
+        metavar="S[,S...]",
+        help=f"which data sets to evaluate, comma-separated, from {', '.join(SETS)} (default: all); with --out only "
+        "their blocks are rewritten",
+    )
+
+
+def _sets(value: str) -> tuple[str, ...]:
+    chosen = tuple(dict.fromkeys(s.strip() for s in value.split(",") if s.strip()))
+    unknown = [s for s in chosen if s not in SETS]
+    if unknown or not chosen:
+        raise UsageError(f"--sets must name some of {', '.join(SETS)}, got {value!r}")
+    return chosen
 
 
 def run(args: argparse.Namespace) -> int:
@@ -36,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
     checks.at_least("points-per-cloud", args.points_per_cloud, 10)
     checks.device(args.device)
     checks.results_file(args.out)
+    sets = _sets(args.sets)
     evaluate.run(
         checkpoint=args.checkpoint,
         device=args.device,
@@ -44,5 +64,6 @@ def run(args: argparse.Namespace) -> int:
         out=args.out,
         quick=args.quick,
         command=checks.command_line(args.argv),
+        sets=sets,
     )
     return 0

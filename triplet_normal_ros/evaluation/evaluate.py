@@ -187,25 +187,30 @@ def run(
     out: Path | None,
     quick: bool,
     command: str,
+    sets: tuple[str, ...] = ("val", "depth", "lidar", "pcpnet"),
 ) -> None:
-    """Every data set: tables to stdout and, with `out`, into that markdown file plus the fandisk heat map."""
+    """Each of `sets` (all by default): tables to stdout and, with `out`, into that markdown file (plus the fandisk
+    heat map with pcpnet); blocks of sets not run are left as they are."""
     from . import range_eval
     from .report import update_section
 
     per_cloud = min(points_per_cloud, 200) if quick else points_per_cloud
-    if not quick:
+    if not quick and "pcpnet" in sets:
         pcpnet_shapes_present(pcpnet_dir)
     contenders = Contenders(checkpoint, device)
     header = _header(command, checkpoint, quick, contenders, per_cloud)
 
-    start = time.perf_counter()
-    val = evaluate_validation(contenders, per_cloud, quick)
-    val_md = validation_markdown(val, header, time.perf_counter() - start)
-    print(val_md)
-    if out is not None:
-        update_section(out, "eval-val", val_md)
+    if "val" in sets:
+        start = time.perf_counter()
+        val = evaluate_validation(contenders, per_cloud, quick)
+        val_md = validation_markdown(val, header, time.perf_counter() - start)
+        print(val_md)
+        if out is not None:
+            update_section(out, "eval-val", val_md)
 
     for kind, spec in range_eval.SETS.items():
+        if kind not in sets:
+            continue
         start = time.perf_counter()
         estimators = range_eval.contenders(checkpoint, device, radius=spec.radius)
         scores, summary = range_eval.evaluate_set(kind, estimators, quick)
@@ -215,6 +220,8 @@ def run(
         if out is not None:
             update_section(out, f"eval-{kind}", markdown)
 
+    if "pcpnet" not in sets:
+        return
     start = time.perf_counter()
     pcp = evaluate_pcpnet(contenders, pcpnet_dir, per_cloud, quick)
     docs = Path(out).parent if out is not None else None
