@@ -13,6 +13,7 @@ import re
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -221,14 +222,20 @@ def malformed_clouds(client: ProbeClient) -> dict[str, PointCloud2]:
 def test_malformed_clouds_are_skipped_and_the_node_keeps_serving(
     client: ProbeClient, pca_node: NodeProcess, frame: Frame
 ) -> None:
+    # An answered request first: the worker is idle, so no earlier cloud can replace a malformed one in the mailbox.
+    assert client.request(small_cloud(client, frame), timeout=30) is not None
     before = _total_rejected(pca_node)
     bad = malformed_clouds(client)
-    for name, cloud in bad.items():
+    for i, (name, cloud) in enumerate(bad.items(), start=1):
         client.send(cloud)
-        client.spin_for(0.2)
+        # Its rejection must be counted (the 1 s statistics line) before a valid cloud could take its mailbox slot.
+        deadline = time.monotonic() + 20
+        while _total_rejected(pca_node) < before + i:
+            assert time.monotonic() < deadline, f"{name} was not rejected:\n{pca_node.log[-2000:]}"
+            client.spin_for(0.1)
         assert client.request(small_cloud(client, frame), timeout=30) is not None, f"no answer after {name}"
     assert "skipped a malformed cloud" in pca_node.log
-    assert pca_node.wait_for_log(f"{before + len(bad)} rejected", 10), pca_node.log[-2000:]
+    assert _total_rejected(pca_node) == before + len(bad), pca_node.log[-2000:]
     assert "Traceback" not in pca_node.log
 
 
