@@ -4,7 +4,7 @@ Each estimator runs once per frame after a warm-up call on a small crop (so star
 checkpoint are not counted), on every valid pixel, neighbours through the estimator's own search, radius 0.05 m.
 Prints a markdown table: seconds per frame, the share of points sent to the network, and ratios measured in this run.
 
-Run: .venv/bin/python docs/tools/real_frame_speed.py   (about 8 minutes on 2 quiet CPU cores)
+Run: .venv/bin/python docs/tools/real_frame_speed.py   (about 10 minutes on 2 quiet CPU cores)
 """
 
 import time
