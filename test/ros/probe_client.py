@@ -1,11 +1,9 @@
-"""What the cross-process tests need beyond the demo's :class:`ReplayClient`: fire-and-forget sends, resending, crops.
+"""What the cross-process tests need beyond the demo's :class:`ReplayClient`: fire-and-forget sends and crops.
 
 Kept under test/ so the runtime package ships only what ``make demo`` uses.
 """
 
 from __future__ import annotations
-
-import time
 
 from sensor_msgs.msg import PointCloud2
 
@@ -13,7 +11,7 @@ from triplet_normal_ros.ros.replay import Frame, ReplayClient
 
 
 class ProbeClient(ReplayClient):
-    """A :class:`ReplayClient` that can also publish without waiting and resend over a lossy (best-effort) input."""
+    """A :class:`ReplayClient` that can also publish without waiting and keep serving callbacks."""
 
     def send(self, cloud: PointCloud2) -> None:
         """Publish without waiting (for clouds the node is expected to reject)."""
@@ -22,15 +20,6 @@ class ProbeClient(ReplayClient):
     def spin_for(self, seconds: float) -> None:
         """Keep serving callbacks for ``seconds`` (lets DDS deliver what was sent)."""
         self._spin_until(lambda: False, seconds)
-
-    def request_resending(self, cloud: PointCloud2, timeout: float, every: float) -> PointCloud2 | None:
-        """``request``, republishing the cloud every ``every`` s while unanswered: best effort may lose it."""
-        deadline = time.monotonic() + timeout
-        while (left := deadline - time.monotonic()) > 0:
-            answer = self.request(cloud, timeout=min(every, left))
-            if answer is not None:
-                return answer
-        return None
 
 
 def cropped(frame: Frame, top: int, left: int, height: int, width: int) -> Frame:

@@ -96,14 +96,12 @@ def _wait_for(client: ReplayClient, node: subprocess.Popen, out: Path, timeout: 
             raise SystemExit(f"demo: the node did not come up: {log[-1] if log else 'no output'}")
 
 
-def _prime(client: ReplayClient, frame: Frame, attempts: int = 3) -> None:
-    """Send a small crop until it is answered: a best-effort sample sent the moment discovery matches can be lost
-    while the shared-memory path is still being set up, and each full frame below is sent only once."""
+def _prime(client: ReplayClient, frame: Frame) -> None:
+    """A small crop answered first: each full frame below is sent only once, and a best-effort sample sent the moment
+    discovery matches can be lost."""
     crop = Frame(f"{frame.name}[crop]", frame.xyz[200:240, 300:340], frame.rgb[200:240, 300:340])
-    for _ in range(attempts):
-        if client.request(crop.to_cloud(client.header()), timeout=30) is not None:
-            return
-    raise SystemExit("demo: the node never answered a small cloud (see out/node.log)")
+    if client.request_resending(crop.to_cloud(client.header()), timeout=90, every=30) is None:
+        raise SystemExit("demo: the node never answered a small cloud (see out/node.log)")
 
 
 def _replay(client: ReplayClient, frames: list[Frame], method: str) -> list[Result]:

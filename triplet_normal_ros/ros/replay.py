@@ -144,6 +144,16 @@ class ReplayClient:
         self._publisher.publish(cloud)
         return self._answers.pop(key) if self._spin_until(lambda: key in self._answers, timeout) else None
 
+    def request_resending(self, cloud: PointCloud2, timeout: float, every: float) -> PointCloud2 | None:
+        """``request``, republishing the cloud every ``every`` s while unanswered: a best-effort sample can be lost,
+        notably one sent the moment discovery matches, while the shared-memory path is still being set up."""
+        deadline = time.monotonic() + timeout
+        while (left := deadline - time.monotonic()) > 0:
+            answer = self.request(cloud, timeout=min(every, left))
+            if answer is not None:
+                return answer
+        return None
+
     def set_parameters(self, values: Mapping[str, Any], timeout: float = 60.0) -> tuple[bool, str]:
         """Set ``values`` atomically on the node; (successful, reason)."""
         future = self._params.set_parameters_atomically([Parameter(k, value=v) for k, v in values.items()])
