@@ -64,7 +64,7 @@ def test_encoder_latent_width_and_config_round_trip() -> None:
     clone.eval()
     x = torch.randn(5, 12, 3)
     torch.testing.assert_close(clone(x), net(x))
-    assert net.config == {"encoder": [16, 32], "regressor": [16], "residual": False}
+    assert net.config == {"encoder": [16, 32], "regressor": [16], "residual": False, "scales": [], "inlier_seeds": []}
 
 
 def test_training_mode_reaches_every_parameter() -> None:

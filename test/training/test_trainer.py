@@ -225,3 +225,64 @@ def test_a_run_without_normal_loss_epochs_reports_that_instead_of_crashing(tmp_p
     assert "no normal-loss epoch ran" in capsys.readouterr().out
     history = json.loads((run_dir / "history.json").read_text())
     assert [h["phase"] for h in history["history"]] == ["encoder"] and history["final_val_normal_loss"] is None
+
+
+def test_a_scale_head_trains_on_the_plane_fits_and_its_checkpoint_records_the_scales(tmp_path):
+    run_dir = tmp_path / "scales"
+    train.run(
+        _args("--encoder-epochs 1 --regressor-epochs 3 --loss relative --scales 4 8 16 --inlier-seeds 8", run_dir)
+    )
+    meta = read_metadata(run_dir / "model.safetensors")
+    assert meta["architecture"]["scales"] == [4, 8, 16] and meta["training"]["recipe"]["scales"] == [4, 8, 16]
+    assert meta["architecture"]["inlier_seeds"] == [8]
+    rows = [h for h in json.loads((run_dir / "history.json").read_text())["history"] if h["phase"] == "regressor"]
+    assert rows[-1]["train"] < rows[0]["train"]
+    # Resuming under other scales would compare losses of different heads: refused, like any other head change.
+    with pytest.raises(TrainingError, match=r"scales: \[4, 8, 16\] -> \[8, 16\]"):
+        argv = "--encoder-epochs 1 --regressor-epochs 4 --loss relative --scales 8 16 --inlier-seeds 8 --resume"
+        train.run(_args(argv, run_dir))
+
+
+def test_a_state_written_before_scales_existed_resumes_as_a_run_without_them(tmp_path):
+    run_dir = tmp_path / "old_state"
+    train.run(_args("--encoder-epochs 1 --regressor-epochs 1", run_dir))
+    state = torch.load(run_dir / "state.pt", weights_only=True)
+    del state["recipe"]["scales"]
+    torch.save(state, run_dir / "state.pt")
+    train.run(_args("--encoder-epochs 1 --regressor-epochs 2 --resume", run_dir))
+    history = json.loads((run_dir / "history.json").read_text())["history"]
+    assert [h["epoch"] for h in history if h["phase"] == "regressor"] == [0, 1]
+
+
+@pytest.mark.parametrize("scales", ["2 8", "16 8", "8 8"])
+def test_scales_that_cannot_work_are_one_usage_error(scales, tmp_path):
+    with pytest.raises(UsageError, match="--scales: scales must"):
+        train.recipe_from_args(_args(f"--scales {scales}", tmp_path))
+
+
+def test_range_frames_join_the_training_and_validation_clouds_at_their_metric_radii(tmp_path):
+    from triplet_normal_ros.training.range_scans import depth_frames, lidar_scans
+    from triplet_normal_ros.training.trainer import _range_samplers
+
+    run_dir = tmp_path / "range"
+    train.run(_args("--encoder-epochs 0 --regressor-epochs 1 --range-frames 1", run_dir))
+    history = json.loads((run_dir / "history.json").read_text())["history"]
+    (patches,) = {h["n"] for h in history if h["phase"] == "regressor"}
+    assert (2 * 6 + 1) * 256 < patches <= (2 * 6 + 2) * 256  # + 1 depth + 1 LiDAR frame (a few isolated returns)
+    recipe = train.recipe_from_args(_args("--range-frames 3", run_dir))
+    samplers = {split: _range_samplers(recipe, split) for split in ("train", "val")}
+    assert [s.radius for s in samplers["train"]] == [0.05] * 3 + [0.25] * 3
+    assert [s.radius for s in samplers["val"]] == [0.05, 0.25]  # a third as many, at least one of each
+
+    def heads(clouds) -> set[bytes]:
+        return {c[np.isfinite(c).all(axis=1)][:5].tobytes() for c in clouds}
+
+    scored = heads(f.points.reshape(-1, 3).astype(np.float64) for f in depth_frames(3) + lidar_scans(3))  # eval's
+    trained, validated = heads(s.points for s in samplers["train"]), heads(s.points for s in samplers["val"])
+    assert len(trained) == 6 and len(validated) == 2
+    assert not trained & validated and not (trained | validated) & scored
+
+
+def test_inlier_seeds_without_scales_are_one_usage_error(tmp_path):
+    with pytest.raises(UsageError, match="--inlier-seeds needs --scales"):
+        train.recipe_from_args(_args("--inlier-seeds 16", tmp_path))

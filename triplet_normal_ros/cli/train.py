@@ -40,6 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "exponent",
         "val_patches_per_cloud",
         "seed",
+        "range_frames",
     ):
         parser.add_argument("--" + name.replace("_", "-"), type=int)
     parser.add_argument(
@@ -58,6 +59,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--finetune-lr", type=_positive_float)
     parser.add_argument("--encoder-widths", type=int, nargs="+", dest="encoder")
     parser.add_argument("--regressor-widths", type=int, nargs="+", dest="regressor")
+    parser.add_argument(
+        "--scales",
+        type=int,
+        nargs="+",
+        metavar="M",
+        help="scale head: plane fits over the nearest M points (e.g. 8 16 32 64 128) besides the whole pool",
+    )
+    parser.add_argument(
+        "--inlier-seeds",
+        type=int,
+        nargs="+",
+        metavar="S",
+        help="scale head: also inlier plane fits grown from the nearest S points (e.g. 16 32)",
+    )
 
 
 def _positive_float(text: str) -> float:
@@ -69,6 +84,7 @@ def _positive_float(text: str) -> float:
 
 def recipe_from_args(args: argparse.Namespace):
     """The preset with every given option applied, checked."""
+    from ..core.scales import check_scales
     from ..training.recipes import RECIPES, Recipe, check_counts
 
     overrides = {
@@ -77,6 +93,13 @@ def recipe_from_args(args: argparse.Namespace):
     if args.no_triplet:
         overrides["triplet"] = False
     recipe = dataclasses.replace(RECIPES[args.recipe], **overrides)
+    try:
+        check_scales(recipe.scales)
+        check_scales(recipe.inlier_seeds)
+    except ValueError as error:
+        raise UsageError(f"--scales: {error}") from None
+    if recipe.inlier_seeds and not recipe.scales:
+        raise UsageError("--inlier-seeds needs --scales (they are candidates of the scale head)")
     if args.relative_floor_deg is not None and recipe.loss != "relative":
         raise UsageError(f"--relative-floor-deg only applies to --loss relative (this run uses {recipe.loss!r})")
     try:

@@ -13,6 +13,9 @@ METHODS = ("learned", "pca", "hybrid")
 POOL_FACTOR = 4
 #: Training radius, and the offline tools' default: this fraction of the cloud's bounding-box diagonal.
 RADIUS_FRACTION = 0.05
+#: The metric radii of the simulated range sets, in training and evaluation alike: 5 cm on depth frames, as robots
+#: use; on 32-beam LiDAR scans the rings are ~1.3° apart, so a ball must span several of them: 25 cm.
+DEPTH_RADIUS, LIDAR_RADIUS = 0.05, 0.25
 #: Fewer neighbours than this inside the ball gives a NaN row (PCL's convention: a plane needs three points).
 MIN_NEIGHBOURS = 3
 #: Hybrid sends a point to the network when a quadric explains its neighbourhood better than the PCA plane by more than

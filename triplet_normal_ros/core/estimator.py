@@ -33,7 +33,7 @@ from .device import resolve_device
 from .frames import masked_covariance, principal_frames, quadric_gain, surface_variation
 from .neighbours import NeighbourIndex
 from .organized import GridIndex
-from .patches import build_patches, to_world
+from .patches import Patches, build_patches, to_world
 from .voxels import VoxelIndex
 
 #: Query points per neighbour-search chunk; bounds the (chunk, pool) index block and the cancel latency.
@@ -209,8 +209,10 @@ class NormalEstimator:
     @torch.inference_mode()
     def _learned_chunk(self, cloud, centres, pool, rows, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
         with _timed(timings, "patches"):
-            patches = build_patches(cloud, centres, pool, self.radius, self.k, centre_ids=rows, seed=self.seed)
-        local = self._network(patches.points, cancel, timings)
+            patches = build_patches(
+                cloud, centres, pool, self.radius, self.k, centre_ids=rows, seed=self.seed, **self._fit_options()
+            )
+        local = self._network(patches, cancel, timings)
         self.last_run.network += len(centres)
         return _finish(to_world(local, patches.rotation), patches.curvature, patches.valid)
 
@@ -230,21 +232,35 @@ class NormalEstimator:
         if len(gated):
             with _timed(timings, "patches"):
                 patches = build_patches(
-                    cloud, centres[gated], pool[gated], self.radius, self.k, centre_ids=rows[gated], seed=self.seed
+                    cloud,
+                    centres[gated],
+                    pool[gated],
+                    self.radius,
+                    self.k,
+                    centre_ids=rows[gated],
+                    seed=self.seed,
+                    **self._fit_options(),
                 )
-            local_normals = self._network(patches.points, cancel, timings)
+            local_normals = self._network(patches, cancel, timings)
             normal[gated] = to_world(local_normals, patches.rotation).to(normal.dtype)
             self.last_run.network += len(gated)
         return _finish(normal, curvature, valid)
 
-    def _network(self, patches: torch.Tensor, cancel: threading.Event | None, timings: dict) -> torch.Tensor:
-        """The model over (B, k, 3) patches in batches, checking `cancel` between them."""
-        local = torch.empty((len(patches), 3), dtype=torch.float32, device=self.device)
+    def _fit_options(self) -> dict[str, tuple[int, ...]]:
+        """The plane fits a scale-head checkpoint reads (none for the others)."""
+        return {"scales": self.model.scales, "inlier_seeds": self.model.inlier_seeds}
+
+    def _network(self, patches: Patches, cancel: threading.Event | None, timings: dict) -> torch.Tensor:
+        """The model over the (B, k, 3) patches (and their plane fits, for a scale head) in batches, checking
+        `cancel` between them."""
+        points, fits = patches.points, patches.scales
+        local = torch.empty((len(points), 3), dtype=torch.float32, device=self.device)
         with _timed(timings, "network"):
-            for lo in range(0, len(patches), self.batch_size):
+            for lo in range(0, len(points), self.batch_size):
                 if cancel is not None and cancel.is_set():
                     raise EstimationCancelled("estimation cancelled")
-                local[lo : lo + self.batch_size] = self.model(patches[lo : lo + self.batch_size])
+                rows = slice(lo, lo + self.batch_size)
+                local[rows] = self.model(points[rows], None if fits is None else fits[rows])
             _sync(self.device)
         return local
 

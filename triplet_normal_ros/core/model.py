@@ -9,6 +9,8 @@ import itertools
 import torch
 from torch import nn
 
+from .scales import CUES_PER_SCALE, ScaleFits, check_scales
+
 DEFAULT_ENCODER = (64, 64, 128, 1024)
 DEFAULT_REGRESSOR = (512, 256)
 #: Inference runs the per-point MLP on blocks of about this many rows, so activations stay in cache.
@@ -82,24 +84,40 @@ class NormalRegressor(nn.Module):
     With `residual`, the MLP predicts a correction to the PCA normal, which is +z in the patch frame: the output is
     normalize(e_z + mlp(latent)) and the last layer starts at zero, so an untrained head is exactly PCA and training
     only moves away from it where the data pays for it (docs/MODEL.md).
+
+    With `candidates` > 0 (the scale head), the MLP also reads the plane fits' cues and outputs a softmax weight per
+    candidate normal besides the correction: normalize(sum_s w_s n_s + mlp(...)), so choosing an exact small-scale
+    fit near an edge, or the whole pool on a noisy smooth patch, is a matter of weights (`scales.py`). Its last
+    layer also starts at zero: an untrained scale head averages the candidates.
     """
 
     def __init__(
-        self, latent_dim: int = 1024, widths: tuple[int, ...] = DEFAULT_REGRESSOR, residual: bool = False
+        self,
+        latent_dim: int = 1024,
+        widths: tuple[int, ...] = DEFAULT_REGRESSOR,
+        residual: bool = False,
+        candidates: int = 0,
     ) -> None:
         super().__init__()
         layers: list[nn.Module] = []
-        dims = (latent_dim, *widths)
+        dims = (latent_dim + candidates * CUES_PER_SCALE, *widths)
         for a, b in itertools.pairwise(dims):
             layers += [nn.Linear(a, b), nn.BatchNorm1d(b), nn.ReLU()]
-        layers.append(nn.Linear(dims[-1], 3))
+        layers.append(nn.Linear(dims[-1], 3 + candidates))
         self.mlp = nn.Sequential(*layers)
-        self.residual = residual
-        if residual:
+        self.residual = residual or candidates > 0
+        self.candidates = candidates
+        if self.residual:
             nn.init.zeros_(layers[-1].weight)
             nn.init.zeros_(layers[-1].bias)
 
-    def forward(self, latent: torch.Tensor) -> torch.Tensor:
+    def forward(self, latent: torch.Tensor, fits: ScaleFits | None = None) -> torch.Tensor:
+        if self.candidates:
+            if fits is None:
+                raise ValueError("a scale head needs the patches' plane fits (build_patches(..., scales=...))")
+            out = self.mlp(torch.cat((latent, fits.cues), dim=1))
+            weights = torch.softmax(out[:, 3:], dim=1)
+            return nn.functional.normalize(out[:, :3] + torch.einsum("bs,bsi->bi", weights, fits.normals), dim=-1)
         out = self.mlp(latent)
         if self.residual:
             out = out + out.new_tensor((0.0, 0.0, 1.0))
@@ -107,27 +125,44 @@ class NormalRegressor(nn.Module):
 
 
 class TripletNormalNet(nn.Module):
-    """Encoder + regressor; `config` is what a checkpoint stores to rebuild it."""
+    """Encoder + regressor; `config` is what a checkpoint stores to rebuild it. Non-empty `scales` (nearest-m counts)
+    makes the regressor a scale head over plane fits at those scales plus the whole pool."""
 
     def __init__(
         self,
         encoder: tuple[int, ...] = DEFAULT_ENCODER,
         regressor: tuple[int, ...] = DEFAULT_REGRESSOR,
         residual: bool = False,
+        scales: tuple[int, ...] = (),
+        inlier_seeds: tuple[int, ...] = (),
     ):
         super().__init__()
-        self.config = {"encoder": list(encoder), "regressor": list(regressor), "residual": residual}
+        scales, inlier_seeds = check_scales(scales), check_scales(inlier_seeds)
+        if inlier_seeds and not scales:
+            raise ValueError("inlier_seeds need a scale head (non-empty scales)")
+        self.config = {
+            "encoder": list(encoder),
+            "regressor": list(regressor),
+            "residual": residual,
+            "scales": list(scales),
+            "inlier_seeds": list(inlier_seeds),
+        }
+        self.scales, self.inlier_seeds = scales, inlier_seeds
         self.encoder = PatchEncoder(tuple(encoder))
-        self.regressor = NormalRegressor(encoder[-1], tuple(regressor), residual)
+        candidates = len(scales) + 1 + len(inlier_seeds) if scales else 0
+        self.regressor = NormalRegressor(encoder[-1], tuple(regressor), residual, candidates)
 
     @classmethod
     def from_config(cls, config: dict) -> "TripletNormalNet":
-        """`residual` is absent from checkpoints written before it existed: those regress the normal directly."""
+        """`residual`, `scales` and `inlier_seeds` are absent from checkpoints written before they existed: those
+        regress the normal directly, and without plane fits."""
         return cls(
             tuple(int(w) for w in config["encoder"]),
             tuple(int(w) for w in config["regressor"]),
             bool(config.get("residual", False)),
+            tuple(int(m) for m in config.get("scales", ())),
+            tuple(int(m) for m in config.get("inlier_seeds", ())),
         )
 
-    def forward(self, patches: torch.Tensor) -> torch.Tensor:
-        return self.regressor(self.encoder(patches))
+    def forward(self, patches: torch.Tensor, fits: ScaleFits | None = None) -> torch.Tensor:
+        return self.regressor(self.encoder(patches), fits)

@@ -10,6 +10,7 @@ import torch
 
 from .conventions import MIN_NEIGHBOURS
 from .frames import canonical_signs, masked_covariance, principal_frames, surface_variation
+from .scales import ScaleFits, scale_fits
 
 
 @dataclass
@@ -22,6 +23,7 @@ class Patches:
     valid: torch.Tensor  # (B,) bool: at least MIN_NEIGHBOURS neighbours
     pca_normal: torch.Tensor  # (B, 3) world frame, the smallest principal axis of the whole pool
     curvature: torch.Tensor  # (B,) surface variation of the whole pool
+    scales: ScaleFits | None = None  # plane fits at the model's scales, for a scale head (see scales.py)
 
 
 def build_patches(
@@ -34,13 +36,17 @@ def build_patches(
     rotation: torch.Tensor | None = None,
     centre_ids: torch.Tensor | None = None,
     seed: int = 0,
+    scales: tuple[int, ...] = (),
+    inlier_seeds: tuple[int, ...] = (),
 ) -> Patches:
     """Build patches from neighbour pools (B, P) of cloud indices, -1 padded (see `NeighbourIndex.ball`).
 
     The PCA frame and curvature use the whole pool; the network sees k of its points. `rotation` overrides the frame,
     which triplet training needs to express positive and negative patches in the anchor's frame. The k points are
     drawn with `generator` (training) or, given `centre_ids`, by a hash of (centre, neighbour, seed), so a point's
-    patch never depends on which other points share its batch (inference).
+    patch never depends on which other points share its batch (inference). Non-empty `scales` adds the plane fits
+    a scale head needs (`scales.scale_fits`, with inlier fits grown from `inlier_seeds`), from the whole pool like the
+    frame.
     """
     mask = pool >= 0
     valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
@@ -61,6 +67,7 @@ def build_patches(
         valid=valid,
         pca_normal=frame[:, 2],
         curvature=surface_variation(eigvals),
+        scales=scale_fits(local, mask, rot, tuple(scales), tuple(inlier_seeds)) if scales else None,
     )
 
 

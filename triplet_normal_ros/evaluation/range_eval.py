@@ -14,14 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.conventions import POOL_FACTOR
+from ..core.conventions import DEPTH_RADIUS, LIDAR_RADIUS, POOL_FACTOR
 from ..core.estimator import NormalEstimator
 from .metrics import angles_rad
 
-#: The metric radius robots use on depth frames (issue #10): 5 cm.
-DEPTH_RADIUS = 0.05
-#: On 32-beam LiDAR scans the rings are ~1.3° apart, so a ball must span several of them (issue #12): 25 cm.
-LIDAR_RADIUS = 0.25
 #: Frames evaluated per set (seeds 0..n-1 of training.range_scans) and query pixels per frame.
 FRAMES, QUERIES = 3, 5000
 QUICK_FRAMES, QUICK_QUERIES = 1, 300
@@ -84,9 +80,7 @@ def contenders(
     return rows
 
 
-def evaluate_set(
-    kind: str, estimators: dict[str, NormalEstimator], quick: bool
-) -> tuple[list[MethodScore], dict]:
+def evaluate_set(kind: str, estimators: dict[str, NormalEstimator], quick: bool) -> tuple[list[MethodScore], dict]:
     """Score every estimator on one set's frames; returns the scores and a summary of the frames."""
     from tqdm import tqdm
 

@@ -10,6 +10,7 @@ from tqdm import tqdm
 from ..core.conventions import POOL_FACTOR, bbox_diagonal
 from ..core.neighbours import NeighbourIndex
 from ..core.patches import Patches, build_patches
+from ..core.scales import ScaleFits
 from .triplets import mine_triplets
 
 
@@ -25,23 +26,46 @@ class NormalSet:
     patches: torch.Tensor  # (n, k, 3) patch frame
     centre_normal: torch.Tensor  # (n, 3) ground truth in the patch frame
     patch_normals: torch.Tensor  # (n, k, 3) ground truth of the k points fed to the network, patch frame
+    fits: ScaleFits | None = None  # plane fits at the recipe's scales, for a scale head
 
 
 class PatchSampler:
-    """One training cloud, its KD-tree and its radius (radius_rel × its bounding-box diagonal, as at inference)."""
+    """One training cloud, its KD-tree and its radius: radius_rel × its bounding-box diagonal, as at inference, or
+    `radius` when given (a metric radius, for the simulated range frames). `scales` (nearest-m counts) and
+    `inlier_seeds` add the plane fits of a scale head to the patches of phases (b) and (c). Non-finite points (a range
+    frame's missing returns) are never neighbours or centres."""
 
-    def __init__(self, points: np.ndarray, normals: np.ndarray, radius_rel: float, k: int) -> None:
+    def __init__(
+        self,
+        points: np.ndarray,
+        normals: np.ndarray,
+        radius_rel: float,
+        k: int,
+        scales: tuple[int, ...] = (),
+        radius: float | None = None,
+        inlier_seeds: tuple[int, ...] = (),
+    ) -> None:
         self.points = np.asarray(points, dtype=np.float64)
         self.normals = np.asarray(normals, dtype=np.float64)
         self.index = NeighbourIndex(self.points)
-        self.radius = radius_rel * bbox_diagonal(self.points)
+        self.radius = radius_rel * bbox_diagonal(self.points) if radius is None else radius
         self.k = k
+        self.fit_options = {"scales": tuple(scales), "inlier_seeds": tuple(inlier_seeds)}
         self.cloud = torch.from_numpy(self.points)
 
-    def patches(self, centres: np.ndarray, generator: torch.Generator, rotation=None) -> Patches:
+    def patches(
+        self, centres: np.ndarray, generator: torch.Generator, rotation=None, fits: dict | None = None
+    ) -> Patches:
         pool, _ = self.index.ball(self.points[centres], self.radius, POOL_FACTOR * self.k)
         return build_patches(
-            self.cloud, self.cloud[centres], torch.from_numpy(pool), self.radius, self.k, generator, rotation
+            self.cloud,
+            self.cloud[centres],
+            torch.from_numpy(pool),
+            self.radius,
+            self.k,
+            generator,
+            rotation,
+            **(fits or {}),
         )
 
     def local_normals(self, patches: Patches, indices: torch.Tensor) -> torch.Tensor:
@@ -68,11 +92,12 @@ class PatchSampler:
         centres = rng.choice(
             np.flatnonzero(self.index.finite), size=min(n, int(self.index.finite.sum())), replace=False
         )
-        p = self.patches(centres, generator)
+        p = self.patches(centres, generator, fits=self.fit_options)
         ok = p.valid
         centre_normal = self.local_normals(p, torch.from_numpy(centres))
         patch_normals = self.local_normals(p, p.selected)
-        return NormalSet(p.points[ok], centre_normal[ok], patch_normals[ok])
+        fits = None if p.scales is None else p.scales[ok]
+        return NormalSet(p.points[ok], centre_normal[ok], patch_normals[ok], fits)
 
 
 def collect_triplets(samplers: list[PatchSampler], per_cloud: int, seed: int, desc: str) -> TripletSet:
@@ -85,6 +110,9 @@ def collect_triplets(samplers: list[PatchSampler], per_cloud: int, seed: int, de
 def collect_normal_patches(samplers: list[PatchSampler], per_cloud: int, seed: int, desc: str) -> NormalSet:
     rng, generator = np.random.default_rng(seed), torch.Generator().manual_seed(seed)
     parts = [s.normal_patches(per_cloud, rng, generator) for s in tqdm(samplers, desc=desc, unit="cloud", leave=False)]
+    fits = None
+    if parts and parts[0].fits is not None:
+        fits = ScaleFits(*(torch.cat([getattr(p.fits, f) for p in parts]) for f in ("normals", "cues")))
     return NormalSet(
-        *(torch.cat([getattr(p, f) for p in parts]) for f in ("patches", "centre_normal", "patch_normals"))
+        *(torch.cat([getattr(p, f) for p in parts]) for f in ("patches", "centre_normal", "patch_normals")), fits
     )

@@ -28,6 +28,9 @@ from .dataset import _seed, _writable_cache, default_cache_dir
 
 CODE_VERSION = 1  # bump when a scene, the sensor models or the edge mask change: stale cache entries are then ignored
 EDGE_RADIUS = 0.05  # m, the metric evaluation radius; "near an edge" = within this of another face
+#: Frame seeds of each use, so no frame is both trained and scored on: eval 0 (frames 0-2), the hybrid gate study
+#: 100 (docs/tools/gate_study.py), training 200, training validation 300.
+TRAIN_SEED, VAL_SEED = 200, 300
 #: Kinect v1 depth camera (640 x 480): focal lengths and principal point in pixels.
 KINECT_FX, KINECT_FY, KINECT_CX, KINECT_CY = 525.0, 525.0, 319.5, 239.5
 DEPTH_RANGE = (0.4, 5.0)  # m, depth z outside this is NaN (Kinect's working range)

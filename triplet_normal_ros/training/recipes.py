@@ -40,6 +40,9 @@ class Recipe:
     val_patches_per_cloud: int = 100
     encoder: list[int] = field(default_factory=lambda: list(DEFAULT_ENCODER))
     regressor: list[int] = field(default_factory=lambda: list(DEFAULT_REGRESSOR))
+    scales: list[int] = field(default_factory=list)  # nearest-m plane fits for a scale head; empty: none
+    inlier_seeds: list[int] = field(default_factory=list)  # inlier plane fits grown from the nearest s (scale head)
+    range_frames: int = 0  # simulated depth frames and LiDAR scans (each) added to the training clouds
     seed: int = 0
     shapes: list[str] | None = None
     val_shapes: list[str] | None = None
@@ -56,6 +59,9 @@ RESUME_FIXED = (
     "triplet",
     "encoder",
     "regressor",
+    "scales",
+    "inlier_seeds",
+    "range_frames",
     "seed",
 )
 
@@ -95,7 +101,7 @@ RECIPES = {
 }
 
 
-#: Recipe sizes that must be at least 1, and epoch counts that must be at least 0 (a phase may be skipped);
+#: Recipe sizes that must be at least 1, and counts that may be 0 (an epoch count: the phase is skipped; range_frames);
 #: k must be at least MIN_NEIGHBOURS (a plane needs three points) and the cos exponent at least 1.
 COUNTS = (
     "exponent",
@@ -106,7 +112,7 @@ COUNTS = (
     "n_points",
     "val_patches_per_cloud",
 )
-EPOCHS = ("encoder_epochs", "regressor_epochs", "finetune_epochs")
+EPOCHS = ("encoder_epochs", "regressor_epochs", "finetune_epochs", "range_frames")
 
 
 def check_counts(recipe: Recipe) -> None:

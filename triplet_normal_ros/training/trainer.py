@@ -24,6 +24,7 @@ from torch.optim.lr_scheduler import ReduceLROnPlateau
 from tqdm import tqdm
 
 from ..core.checkpoint import load_checkpoint, save_checkpoint
+from ..core.conventions import DEPTH_RADIUS, LIDAR_RADIUS
 from ..core.device import resolve_device
 from ..core.model import TripletNormalNet
 from ..errors import TrainingError
@@ -128,7 +129,9 @@ def _start(recipe: Recipe, run_dir: Path, dev: torch.device, resume: bool, encod
     state = _load_state(run_dir) if resume else None
     if state:
         _check_resumable(state, recipe, run_dir)
-    model = TripletNormalNet(tuple(recipe.encoder), tuple(recipe.regressor), recipe.residual).to(dev)
+    fits = (tuple(recipe.scales), tuple(recipe.inlier_seeds))
+    model = TripletNormalNet(tuple(recipe.encoder), tuple(recipe.regressor), recipe.residual, *fits)
+    model = model.to(dev)
     if state:
         model.load_state_dict(state["model"])
     elif encoder_from:
@@ -171,7 +174,28 @@ def _samplers(recipe: Recipe, split: str) -> list[PatchSampler]:
 
     shapes = recipe.shapes if split == "train" else recipe.val_shapes
     clouds = build_dataset(split=split, n_points=recipe.n_points, seed=recipe.seed, shapes=shapes)
-    return [PatchSampler(c.points, c.normals, recipe.radius_rel, recipe.k) for c in clouds]
+    fits = {"scales": tuple(recipe.scales), "inlier_seeds": tuple(recipe.inlier_seeds)}
+    samplers = [PatchSampler(c.points, c.normals, recipe.radius_rel, recipe.k, **fits) for c in clouds]
+    return samplers + _range_samplers(recipe, split)
+
+
+def _range_samplers(recipe: Recipe, split: str) -> list[PatchSampler]:
+    """Simulated depth frames and LiDAR scans at their metric radii, `recipe.range_frames` of each for training and a
+    third as many (at least one) for validation, from frame seeds that eval never scores (`range_scans.TRAIN_SEED`):
+    what robots see (noise along the ray, falling density, rings) beside the uniform CAD samples."""
+    if not recipe.range_frames:
+        return []
+    from .range_scans import TRAIN_SEED, VAL_SEED, depth_frames, lidar_scans
+
+    train = split == "train"
+    count, seed = (recipe.range_frames, TRAIN_SEED) if train else (max(1, recipe.range_frames // 3), VAL_SEED)
+    frames = [(f, DEPTH_RADIUS) for f in depth_frames(count, seed)]
+    frames += [(f, LIDAR_RADIUS) for f in lidar_scans(count, seed)]
+    fits = {"scales": tuple(recipe.scales), "inlier_seeds": tuple(recipe.inlier_seeds)}
+    return [
+        PatchSampler(f.points.reshape(-1, 3), f.normals.reshape(-1, 3), recipe.radius_rel, recipe.k, radius=r, **fits)
+        for f, r in frames
+    ]
 
 
 def _phase_encoder(run: TrainingRun) -> None:
@@ -341,7 +365,8 @@ def _triplet_val_loss(encoder: torch.nn.Module, data: TripletSet, dev: torch.dev
 
 def _recipe_loss(head: torch.nn.Module, data: NormalSet, recipe: Recipe, dev: torch.device, rows) -> torch.Tensor:
     """The recipe's normal loss of `head` on `rows` of `data` (training and validation alike)."""
-    pred = head(data.patches[rows].to(dev))
+    fits = None if data.fits is None else data.fits[rows].to(dev)
+    pred = head(data.patches[rows].to(dev), fits)
     centre, patch = data.centre_normal[rows].to(dev), data.patch_normals[rows].to(dev)
     return patch_loss(recipe.loss, pred, centre, patch, recipe.exponent, recipe.support_deg, recipe.relative_floor_deg)
 
@@ -351,7 +376,7 @@ def _encoded(encoder: torch.nn.Module, data: NormalSet, dev: torch.device) -> No
     encoder.eval()
     with torch.inference_mode():
         latents = [encoder(data.patches[i : i + 512].to(dev)).cpu() for i in range(0, len(data.patches), 512)]
-    return NormalSet(torch.cat(latents), data.centre_normal, data.patch_normals)
+    return NormalSet(torch.cat(latents), data.centre_normal, data.patch_normals, data.fits)
 
 
 def _optimiser(
@@ -377,9 +402,10 @@ def _check_resumable(state: dict, recipe: Recipe, run_dir: Path) -> None:
     saved = state.get("recipe")
     if saved is None:
         raise TrainingError(f"{run_dir}/state.pt does not record its recipe (older version); start a new --run-dir")
-    changed = [
-        f"{f}: {saved.get(f)!r} -> {getattr(recipe, f)!r}" for f in RESUME_FIXED if saved.get(f) != getattr(recipe, f)
-    ]
+    # A field the state predates was trained at its default (e.g. `scales`, added later: none).
+    defaults = dataclasses.asdict(Recipe())
+    before = {f: saved.get(f, defaults[f]) for f in RESUME_FIXED}
+    changed = [f"{f}: {before[f]!r} -> {getattr(recipe, f)!r}" for f in RESUME_FIXED if before[f] != getattr(recipe, f)]
     if changed:
         raise TrainingError(f"cannot resume {run_dir} with a different recipe ({'; '.join(changed)})")
 
