@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import torch
 
 from .conventions import MIN_NEIGHBOURS
-from .frames import masked_covariance
 
 #: Cues per scale: normal (3), surface variation, linearity, query offset from the plane, reach, fill.
 CUES_PER_SCALE = 8
@@ -65,17 +64,25 @@ def scale_fits(
     -> patch frame. Pools need not be sorted (the pixel-grid search samples the ball), so the nearest are found here.
     A scale with fewer than 3 points falls back to the whole pool's fit, and its fill cue says so.
     """
-    dist2 = torch.where(mask, local.pow(2).sum(dim=-1), torch.inf)
+    # float32 and batched matmuls: coordinates are in radii (|x| <= 1), so float32 leaves a normal error far below a
+    # microradian, and the fits cost about a third of the float64 elementwise version (docs/RESULTS.md).
+    local = torch.where(mask.unsqueeze(-1), local, 0.0).to(torch.float32)
+    rotation = rotation.to(torch.float32)
+    dist2 = local.pow(2).sum(dim=-1)
     widest = min(max((*scales, *seeds)), local.shape[1])
-    order = torch.topk(dist2, widest, dim=1, largest=False, sorted=True).indices
+    order = torch.topk(torch.where(mask, dist2, torch.inf), widest, dim=1, largest=False, sorted=True).indices
     near = torch.gather(local, 1, order.unsqueeze(-1).expand(-1, -1, 3))
-    near_mask = torch.gather(mask, 1, order)
-    views = [(near[:, :m], near_mask[:, :m], m) for m in scales] + [(local, mask, local.shape[1])]
-    views += [(local, _inliers(local, mask, order[:, :s]), mask.sum(dim=1).clamp_min(1)) for s in seeds]
-    fits = [_fit(points, keep, m, rotation) for points, keep, m in views]
+    near_weight = torch.gather(mask, 1, order).to(torch.float32)
+    near_dist2 = torch.gather(dist2, 1, order)
+    weight = mask.to(torch.float32)
+    views = [(near[:, :m], near_weight[:, :m], near_dist2[:, :m], m) for m in scales]
+    views.append((local, weight, dist2, local.shape[1]))
+    valid = weight.sum(dim=1).clamp_min(1)
+    views += [(local, _inliers(local, weight, order[:, :s]), dist2, valid) for s in seeds]
+    fits = [_fit(points, w, d2, m, rotation) for points, w, d2, m in views]
     normals = torch.stack([f[0] for f in fits], dim=1)
     cues = torch.cat([f[1] for f in fits], dim=1)
-    return ScaleFits(normals.to(torch.float32), cues.to(torch.float32))
+    return ScaleFits(normals, cues)
 
 
 #: Inlier fits: refits, and the band half-width in RMS residuals of the previous fit (plus 0.1 % of the radius, so a
@@ -83,46 +90,49 @@ def scale_fits(
 INLIER_STEPS, INLIER_BAND, INLIER_SLACK = 3, 3.0, 1e-3
 
 
-def _inliers(local: torch.Tensor, mask: torch.Tensor, seed: torch.Tensor) -> torch.Tensor:
+def _inliers(local: torch.Tensor, weight: torch.Tensor, seed: torch.Tensor) -> torch.Tensor:
     """The pool points within a band of a plane grown from the `seed` columns: fit, keep the points within
-    INLIER_BAND RMS residuals, refit, INLIER_STEPS times. On a clean face this is the whole face inside the ball, which
-    is what a RANSAC plane fit gets exactly and what the whole-pool PCA blurs at an edge."""
-    keep = torch.zeros_like(mask).scatter(1, seed, True) & mask
+    INLIER_BAND RMS residuals, refit, INLIER_STEPS times; as 0/1 weights. On a clean face this is the whole face
+    inside the ball, which is what a RANSAC plane fit gets exactly and what the whole-pool PCA blurs at an edge."""
+    keep = torch.zeros_like(weight).scatter(1, seed, 1.0) * weight
     for _ in range(INLIER_STEPS):
         eigvals, normal, mean, _ = _plane(local, keep)
-        height = ((local - mean.unsqueeze(1)) * normal.unsqueeze(1)).sum(dim=-1).abs()
+        height = (torch.bmm(local, normal.unsqueeze(-1)).squeeze(-1) - (mean * normal).sum(dim=1, keepdim=True)).abs()
         band = INLIER_BAND * eigvals[:, 0].sqrt() + INLIER_SLACK
-        grown = (height < band.unsqueeze(1)) & mask
+        grown = (height < band.unsqueeze(1)).to(weight.dtype) * weight
         keep = torch.where((grown.sum(dim=1) >= MIN_NEIGHBOURS).unsqueeze(1), grown, keep)
     return keep
 
 
-def _plane(points: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, ...]:
-    """PCA of the masked points: ascending eigenvalues (B, 3), world normal (B, 3), mean (B, 3), ok (B,) (>= 3)."""
-    count = mask.sum(dim=1)
+def _plane(points: torch.Tensor, weight: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """PCA of the points with 0/1 `weight` (B, P) (zeroed points where it is 0): ascending eigenvalues (B, 3), world
+    normal (B, 3), mean (B, 3), ok (B,) (at least 3 points)."""
+    count = weight.sum(dim=1)
     ok = count >= MIN_NEIGHBOURS
-    cov = masked_covariance(points, mask)
+    scale = count.clamp_min(1)
+    mean = torch.bmm(weight.unsqueeze(1), points).squeeze(1) / scale.unsqueeze(-1)
+    second = torch.bmm(points.transpose(1, 2), points * weight.unsqueeze(-1)) / scale.view(-1, 1, 1)
+    cov = second - mean.unsqueeze(2) * mean.unsqueeze(1)
     eye = torch.eye(3, dtype=cov.dtype, device=cov.device).expand_as(cov)
     eigvals, eigvecs = torch.linalg.eigh(torch.where(ok.view(-1, 1, 1), cov, eye))
-    mean = torch.where(mask.unsqueeze(-1), points, 0.0).sum(dim=1) / count.clamp_min(1).unsqueeze(-1)
     return eigvals.clamp_min(0.0), eigvecs[..., 0], mean, ok
 
 
-def _fit(points: torch.Tensor, mask: torch.Tensor, m, rotation: torch.Tensor) -> tuple[torch.Tensor, ...]:
-    """One fit's normal in the patch frame (B, 3) and its cues (B, CUES_PER_SCALE); `m` (int or (B,)) is the count
-    that would fill it."""
-    eigvals, world, mean, ok = _plane(points, mask)
-    normal = torch.einsum("bij,bj->bi", rotation.to(world.dtype), world)
+def _fit(points: torch.Tensor, weight: torch.Tensor, dist2: torch.Tensor, m, rotation: torch.Tensor):
+    """One fit's normal in the patch frame (B, 3) and its cues (B, CUES_PER_SCALE); `dist2` (B, P) the points'
+    squared distances from the query, `m` (int or (B,)) the count that would fill the fit."""
+    eigvals, world, mean, ok = _plane(points, weight)
+    normal = torch.einsum("bij,bj->bi", rotation, world)
     normal = torch.where(ok.unsqueeze(-1), normal, normal.new_tensor((0.0, 0.0, 1.0)))
     normal = normal * torch.where(normal[:, 2:] < 0, -1.0, 1.0)
     total = eigvals.sum(dim=1).clamp_min(1e-30)
     largest = eigvals[:, 2].clamp_min(1e-30)
     variation = eigvals[:, 0] / total
     linearity = (eigvals[:, 2] - eigvals[:, 1]) / largest
-    world_normal = torch.einsum("bji,bj->bi", rotation.to(world.dtype), normal)  # back to world axes, signed as above
+    world_normal = torch.einsum("bji,bj->bi", rotation, normal)  # back to world axes, signed as above
     offset = -(mean * world_normal).sum(dim=1)  # the query (origin) above the fitted plane, in radii
-    reach = torch.where(mask, points.pow(2).sum(dim=-1), 0.0).amax(dim=1).sqrt()
-    fill = mask.sum(dim=1).to(points.dtype) / m
+    reach = (dist2 * weight).amax(dim=1).sqrt()
+    fill = weight.sum(dim=1) / m
     cues = torch.stack((variation, linearity, offset, reach, fill), dim=1)
     cues = torch.where(ok.unsqueeze(-1), cues, 0.0)
     return normal, torch.cat((normal, cues), dim=1)
