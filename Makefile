@@ -61,7 +61,7 @@ test-fast: venv
 
 # Offline tools on the shipped data and checkpoint (see docs/CLI.md, docs/TRAINING.md).
 train: venv
-	$(VENV)/bin/triplet-normal train --recipe cpu --run-dir out/train_cpu
+	$(VENV)/bin/triplet-normal train --recipe scales --run-dir out/train_scales
 
 eval: venv
 	$(VENV)/bin/triplet-normal eval --pcpnet-dir ../shared/data/pcpnet --out docs/RESULTS.md

@@ -1,12 +1,16 @@
 """Accuracy regression: the shipped checkpoint on a CAD shape it never saw (from the validation catalogue) must stay
 clearly below PCA's error at the same radius, which is the reason the learned method exists.
 
-Measured when the checkpoint shipped, 5000 query points: MSAE 0.0303 against PCA's 0.0801 clean (0.38x), 0.0628
-against 0.0882 at 0.5 % noise (0.71x), 0.1090 against 0.1144 at 1 % (0.95x). The issue's 0.25x target at 0.5 and
-1 % is missed; docs/RESULTS.md says so and why. On a smooth validation shape it must stay at PCA's level: that is
-what the relative loss bought (the previous checkpoint was 1.09x PCA on it). The bounds below leave room for numeric
-drift, not for regressions.
+Measured when the checkpoint shipped (the scale head with inlier fits and range frames, issue #12), 5000 query
+points: MSAE 0.0183 against PCA's 0.0801 clean (0.23x; the previous checkpoint 0.38x), 0.0605 against 0.0882 at
+0.5 % noise (0.69x), 0.1088 against 0.1144 at 1 % (0.95x). On a smooth validation shape it must stay at PCA's level
+(1.02x at 1 %): that is what the relative loss bought (an earlier checkpoint was 1.09x PCA on it). Issue #12 asks for
+a failing test on a regression in any of its regimes, so the clean and lightly noisy smooth shape, a simulated depth
+frame and LiDAR scan, and the PCPNet cube are checked too. The bounds leave room for numeric drift, not for
+regressions.
 """
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,6 +26,15 @@ pytestmark = pytest.mark.slow  # accuracy checks of the shipped checkpoint: `mak
 
 QUERIES = 5000
 SMOOTH_SHAPE = "ellipsoid_flat"
+PCPNET_DIR = Path(__file__).resolve().parents[3] / "shared" / "data" / "pcpnet"  # ../shared beside the checkout
+#: Issue #12's other regimes, each bound the shipped checkpoint's measured value plus a margin (see each test).
+#: Measured: 0.629° against PCA's 0.892° clean; 1.017 x at 0.25 %; depth frame 0.886 x overall and 0.711 x near
+#: edges; LiDAR scan 0.958 x and 0.969 x; PCPNet cube 5.54° clean and 12.77° at 0.6 %.
+CLEAN_SMOOTH_RMSE_MARGIN_DEG = 0.1  # the issue's target: clean RMSE within 0.1° of PCA's
+LIGHT_SMOOTH_BOUND = 1.05
+DEPTH_BOUNDS = (0.92, 0.75)  # learned / PCA over the pool: overall, near edges
+LIDAR_BOUNDS = (1.0, 1.02)
+PCPNET_CUBE_BOUNDS = [(0.0, 6.0), (0.006, 13.3)]  # (noise, RMSE° bound)
 
 
 def _heldout(noise: float):
@@ -48,7 +61,7 @@ def test_heldout_shape_is_not_in_the_training_catalogue():
     assert read_metadata(default_checkpoint_path())["training"]["recipe"]["shapes"] is None  # all training shapes
 
 
-@pytest.mark.parametrize(("noise", "bound"), [(0.0, 0.42), (0.005, 0.76), (0.01, 1.0)])
+@pytest.mark.parametrize(("noise", "bound"), [(0.0, 0.25), (0.005, 0.72), (0.01, 0.99)])
 def test_shipped_checkpoint_beats_pca_on_heldout_cad(noise: float, bound: float):
     cloud, radius, query = _heldout(noise)
     learned = _msae("learned", cloud, radius, query)
@@ -64,4 +77,77 @@ def test_shipped_checkpoint_matches_pca_on_a_noisy_smooth_validation_shape():
     learned = _msae("learned", cloud, radius, query)
     pca = _msae("pca", cloud, radius, query, k=_pca_k(radius))
     print(f"{SMOOTH_SHAPE} at 1% noise: MSAE learned {learned:.5f} vs PCA {pca:.5f}")
-    assert learned < 1.06 * pca
+    assert learned < 1.04 * pca
+
+
+# --- every regime of issue #12: each bound is the shipped checkpoint's measured ratio plus a margin for numeric drift
+
+
+def _smooth(noise: float):
+    (cloud,) = build_dataset("val", shapes=[SMOOTH_SHAPE], noise_levels=[noise], progress=False)
+    radius = 0.05 * bbox_diagonal(cloud.points)
+    return cloud, radius, np.random.default_rng(11).choice(len(cloud.points), QUERIES, replace=False)
+
+
+def test_shipped_checkpoint_keeps_a_clean_smooth_shape_within_a_tenth_of_a_degree_of_pca():
+    cloud, radius, query = _smooth(0.0)
+    learned = np.degrees(np.sqrt(_msae("learned", cloud, radius, query)))
+    pca = np.degrees(np.sqrt(_msae("pca", cloud, radius, query, k=_pca_k(radius))))
+    print(f"{SMOOTH_SHAPE} clean: RMSE learned {learned:.3f}° vs PCA {pca:.3f}°")
+    assert learned < pca + CLEAN_SMOOTH_RMSE_MARGIN_DEG
+
+
+def test_shipped_checkpoint_stays_near_pca_on_a_lightly_noisy_smooth_shape():
+    cloud, radius, query = _smooth(0.0025)
+    learned = _msae("learned", cloud, radius, query)
+    pca = _msae("pca", cloud, radius, query, k=_pca_k(radius))
+    print(f"{SMOOTH_SHAPE} at 0.25% noise: MSAE learned {learned:.6f} vs PCA {pca:.6f}")
+    assert learned < LIGHT_SMOOTH_BOUND * pca
+
+
+def _range_ratio(kind: str) -> tuple[float, float]:
+    """Learned / PCA over the pool on eval's first frame of `kind`, overall and near edges (5000 query pixels)."""
+    from triplet_normal_ros.core.conventions import DEPTH_RADIUS, LIDAR_RADIUS
+    from triplet_normal_ros.evaluation.metrics import angles_rad
+    from triplet_normal_ros.training.range_scans import depth_frames, lidar_scans
+
+    frame = depth_frames(1)[0] if kind == "depth" else lidar_scans(1)[0]
+    radius = DEPTH_RADIUS if kind == "depth" else LIDAR_RADIUS
+    points, normals = frame.points.reshape(-1, 3), frame.normals.reshape(-1, 3)
+    valid = np.flatnonzero(frame.valid.reshape(-1))
+    query = np.sort(np.random.default_rng(0).choice(valid, QUERIES, replace=False))
+    edge = frame.near_edge.reshape(-1)[query]
+    errors = {}
+    for method, k in (("learned", None), ("pca", _pca_k(radius))):
+        est = NormalEstimator(method, radius=radius, k=k, device="cpu")
+        predicted, _ = est.estimate(points, query, shape=frame.points.shape[:2])
+        errors[method] = angles_rad(predicted, normals[query]) ** 2
+    overall = errors["learned"].mean() / errors["pca"].mean()
+    return overall, errors["learned"][edge].mean() / errors["pca"][edge].mean()
+
+
+def test_shipped_checkpoint_beats_pca_on_a_simulated_depth_frame_most_of_all_near_edges():
+    overall, near_edges = _range_ratio("depth")
+    print(f"depth frame 0: learned / PCA {overall:.3f} overall, {near_edges:.3f} near edges")
+    assert overall < DEPTH_BOUNDS[0] and near_edges < DEPTH_BOUNDS[1]
+
+
+def test_shipped_checkpoint_holds_its_level_on_a_simulated_lidar_scan():
+    overall, near_edges = _range_ratio("lidar")
+    print(f"LiDAR scan 0: learned / PCA {overall:.3f} overall, {near_edges:.3f} near edges")
+    assert overall < LIDAR_BOUNDS[0] and near_edges < LIDAR_BOUNDS[1]
+
+
+@pytest.mark.parametrize(("noise", "bound_deg"), PCPNET_CUBE_BOUNDS)
+def test_shipped_checkpoint_holds_its_pcpnet_cube_rmse(noise: float, bound_deg: float):
+    from triplet_normal_ros.evaluation.evaluate import pcpnet_noisy, pcpnet_shapes
+
+    name, points, normals = next(s for s in pcpnet_shapes(PCPNET_DIR, quick=True) if s[0] == "cube100k")
+    diagonal = bbox_diagonal(points)
+    noisy = pcpnet_noisy(points, noise, diagonal) if noise else points
+    query = np.random.default_rng(11).choice(len(points), QUERIES, replace=False)
+    est = NormalEstimator("learned", radius=0.05 * diagonal, device="cpu")
+    predicted, _ = est.estimate(noisy, query)
+    rmse = np.degrees(np.sqrt(msae(predicted, normals[query])))
+    print(f"PCPNet {name} at {noise:.2%} noise: RMSE learned {rmse:.2f}°")
+    assert rmse < bound_deg

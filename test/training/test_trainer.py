@@ -11,7 +11,7 @@ import torch
 
 from triplet_normal_ros.cli import train
 from triplet_normal_ros.cli.main import main
-from triplet_normal_ros.core.checkpoint import read_metadata
+from triplet_normal_ros.core.checkpoint import default_checkpoint_path, read_metadata
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.neighbours import NeighbourIndex
 from triplet_normal_ros.errors import TrainingError, UsageError
@@ -24,7 +24,7 @@ from triplet_normal_ros.training.triplets import mine_triplets
 pytestmark = pytest.mark.slow  # training runs: `make test-fast` deselects this module
 
 TOY = (
-    "--shapes box_3x2x1 sphere --val-shapes v_notch_block --n-points 3000 --k 32 --patches-per-shape 96 "
+    "--recipe cpu --shapes box_3x2x1 sphere --val-shapes v_notch_block --n-points 3000 --k 32 --patches-per-shape 96 "
     "--regressor-patches-per-shape 256 --val-patches-per-cloud 16 --encoder-widths 16 32 --regressor-widths 32 "
     "--seed 3 --finetune-epochs 0 --no-residual --loss cos"
 )
@@ -286,3 +286,15 @@ def test_range_frames_join_the_training_and_validation_clouds_at_their_metric_ra
 def test_inlier_seeds_without_scales_are_one_usage_error(tmp_path):
     with pytest.raises(UsageError, match="--inlier-seeds needs --scales"):
         train.recipe_from_args(_args("--inlier-seeds 16", tmp_path))
+
+
+def test_the_default_recipe_is_the_shipped_checkpoints_scale_head_with_inlier_fits_and_range_frames(tmp_path):
+    parser = argparse.ArgumentParser()
+    train.add_arguments(parser)
+    recipe = train.recipe_from_args(parser.parse_args(["--run-dir", str(tmp_path)]))
+    assert recipe == RECIPES["scales"]
+    assert (recipe.scales, recipe.inlier_seeds, recipe.range_frames) == ([8, 16, 32, 64, 128], [16, 32], 12)
+    shipped = read_metadata(default_checkpoint_path())
+    assert shipped["architecture"]["scales"] == recipe.scales
+    assert shipped["architecture"]["inlier_seeds"] == recipe.inlier_seeds
+    assert shipped["training"]["recipe"]["range_frames"] == recipe.range_frames

@@ -16,7 +16,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..training.losses import LOSSES
     from ..training.recipes import RECIPES
 
-    parser.add_argument("--recipe", choices=sorted(RECIPES), default="cpu", help="preset (default: cpu)")
+    parser.add_argument(
+        "--recipe", choices=sorted(RECIPES), default="scales", help="preset (default: scales, the shipped one's)"
+    )
     parser.add_argument(
         "--out", type=Path, default=None, help="checkpoint to write (default: run-dir/model.safetensors)"
     )
