@@ -65,18 +65,20 @@ def target_table(rows: list[dict], names: list[str]) -> str:
     return "\n".join(lines)
 
 
-def range_table(checkpoints: list[str], device: str) -> str:
-    """Depth frames and LiDAR scans: learned and hybrid per checkpoint against PCA over the pool."""
+def range_table(checkpoints: list[str], device: str, neighbours: str = "auto") -> str:
+    """Depth frames and LiDAR scans: learned and hybrid per checkpoint against PCA over the pool, every method with
+    the `neighbours` search (the frames are organized, so 'grid' takes pools from the pixel grid)."""
     lines = [
         "| set | method | MSAE | near edges | / PCA pool | / PCA pool near edges |",
         "| --- | --- | ---: | ---: | ---: | ---: |",
     ]
     for kind, spec in SETS.items():
-        estimators = {"PCA pool": NormalEstimator("pca", radius=spec.radius, k=POOL_FACTOR * 128, device=device)}
+        pca = NormalEstimator("pca", radius=spec.radius, k=POOL_FACTOR * 128, device=device, neighbours=neighbours)
+        estimators = {"PCA pool": pca}
         for ckpt in checkpoints:
             for method in ("learned", "hybrid"):
                 estimators[f"{method}, {ckpt}"] = NormalEstimator(
-                    method, radius=spec.radius, checkpoint=ckpt, device=device
+                    method, radius=spec.radius, checkpoint=ckpt, device=device, neighbours=neighbours
                 )
         scores, _ = evaluate_set(kind, estimators, quick=False)
         pca = scores[0]
@@ -94,16 +96,19 @@ def main() -> None:
     parser.add_argument("--per-cloud", type=int, default=1000, help="validation query points per cloud")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--skip-range", action="store_true", help="validation clouds only")
+    parser.add_argument("--range-only", action="store_true", help="depth frames and LiDAR scans only")
+    parser.add_argument("--neighbours", default="auto", help="neighbour search on the range frames (auto, grid, ...)")
     args = parser.parse_args()
     start = time.time()
-    estimators = {"pca": NormalEstimator("pca", k=POOL_FACTOR * 128, device=args.device)}
-    for ckpt in args.checkpoints:
-        estimators[ckpt] = NormalEstimator("learned", checkpoint=ckpt, device=args.device)
-    rows = validation_squares(estimators, args.per_cloud)
-    print(target_table(rows, list(args.checkpoints)))
+    if not args.range_only:
+        estimators = {"pca": NormalEstimator("pca", k=POOL_FACTOR * 128, device=args.device)}
+        for ckpt in args.checkpoints:
+            estimators[ckpt] = NormalEstimator("learned", checkpoint=ckpt, device=args.device)
+        rows = validation_squares(estimators, args.per_cloud)
+        print(target_table(rows, list(args.checkpoints)))
     if not args.skip_range:
         print()
-        print(range_table(list(args.checkpoints), args.device))
+        print(range_table(list(args.checkpoints), args.device, args.neighbours))
     print(f"\n{(time.time() - start) / 60:.1f} min")
 
 

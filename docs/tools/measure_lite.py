@@ -23,6 +23,7 @@ from torch import nn
 from triplet_normal_ros.core.checkpoint import SHIPPED, load_checkpoint
 from triplet_normal_ros.core.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.scales import ScaleFits, cue_count
 from triplet_normal_ros.evaluation import range_eval
 from triplet_normal_ros.evaluation.bench import torus_cloud
 from triplet_normal_ros.evaluation.evaluate import query_indices, validation_clouds
@@ -34,7 +35,9 @@ BATCH, ROUNDS, SECONDS_PER_ROUND = 256, 5, 2.0
 def multiply_adds(architecture: dict, k: int) -> int:
     """Multiply-adds of one patch: every point through the encoder's widths, then the latent through the regressor."""
     encoder = [3, *architecture["encoder"]]
-    regressor = [encoder[-1], *architecture["regressor"], 3]
+    scales, seeds = architecture.get("scales", []), architecture.get("inlier_seeds", [])
+    candidates = len(scales) + 1 + len(seeds) if scales else 0  # a scale head reads cues and weighs candidates
+    regressor = [encoder[-1] + cue_count(scales, seeds) * bool(scales), *architecture["regressor"], 3 + candidates]
     per_point = sum(a * b for a, b in itertools.pairwise(encoder))
     return k * per_point + sum(a * b for a, b in itertools.pairwise(regressor))
 
@@ -42,10 +45,15 @@ def multiply_adds(architecture: dict, k: int) -> int:
 def patches_per_second(model: nn.Module, k: int) -> float:
     """Patches/s of one timed round: as many (BATCH, k, 3) batches as fit in SECONDS_PER_ROUND."""
     patches = torch.randn(BATCH, k, 3)
+    fits = None
+    if getattr(model, "scales", ()):  # the network alone: random plane fits stand in for `scales.scale_fits`
+        candidates = len(model.scales) + 1 + len(model.inlier_seeds)
+        normals = torch.nn.functional.normalize(torch.randn(BATCH, candidates, 3), dim=-1)
+        fits = ScaleFits(normals, torch.randn(BATCH, cue_count(model.scales, model.inlier_seeds)))
     done, start = 0, time.perf_counter()
     with torch.inference_mode():
         while time.perf_counter() - start < SECONDS_PER_ROUND:
-            model(patches)
+            model(patches, fits)
             done += BATCH
     return done / (time.perf_counter() - start)
 
@@ -143,8 +151,10 @@ def main() -> None:
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads")
     speed = speed_rows(names)
     for name, row in speed.items():
-        print(f"{name}: k = {row['k']}, {row['mflop']:.2f} MFLOP/patch, {row['params']:,} parameters, "
-              f"network {row['fp32']:,.0f} patches/s fp32, {row['int8']:,.0f} with int8 regressor")
+        print(
+            f"{name}: k = {row['k']}, {row['mflop']:.2f} MFLOP/patch, {row['params']:,} parameters, "
+            f"network {row['fp32']:,.0f} patches/s fp32, {row['int8']:,.0f} with int8 regressor"
+        )
     for name, row in pipeline_rows(names, args.queries).items():
         print(f"{name} pipeline pts/s: " + ", ".join(f"{stage} {rate:,.0f}" for stage, rate in row.items()))
     if args.skip_accuracy:

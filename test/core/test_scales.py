@@ -134,3 +134,36 @@ def test_an_inlier_fit_grows_a_clean_face_across_the_ball_without_crossing_the_e
 def test_inlier_seeds_need_a_scale_head():
     with pytest.raises(ValueError, match="need a scale head"):
         TripletNormalNet((16, 32), (16,), True, (), (16,))
+
+
+def test_a_pixel_grid_pool_gives_the_fits_a_nearest_point_pool_gives_on_a_dense_plane():
+    from triplet_normal_ros.core.organized import GridIndex
+
+    h, w = 120, 160  # a tilted plane seen by a pinhole camera, 2 m away: dense, so every ball is full
+    u, v = np.meshgrid((np.arange(w) - w / 2) / 1000, (np.arange(h) - h / 2) / 1000)  # 2 mm pixels
+    depth = 2.0 / (1.0 + 0.3 * u)
+    frame = np.stack([u * depth, v * depth, depth], axis=-1).reshape(-1, 3)
+    truth = np.array([0.3, 0.0, 1.0]) / np.linalg.norm([0.3, 0.0, 1.0])  # z + 0.3 x = 2
+    rows = np.ravel_multi_index(([60, 40, 80], [80, 50, 110]), (h, w))
+    cloud, radius, k = torch.from_numpy(frame), 0.05, 128
+    pools = {
+        "kdtree": torch.from_numpy(NeighbourIndex(frame).ball(frame[rows], radius, 4 * k)[0]),
+        "grid": GridIndex(cloud, h, w).ball(torch.from_numpy(rows), radius, 4 * k),
+    }
+    assert pools["grid"].shape[1] > 4 * k  # the grid's pool array is wider than the pool it stands for
+    fits = {
+        name: build_patches(cloud, cloud[rows], pool, radius, k, scales=SCALES, inlier_seeds=(16,))
+        for name, pool in pools.items()
+    }
+    for name, patches in fits.items():
+        cues = patches.scales.cues.view(len(rows), len(SCALES) + 2, CUES_PER_SCALE)
+        # The whole pool reads as (nearly) full, as in training: the grid samples about 4k points of the ball, out of
+        # an array 729 wide; over the array's width it would read 0.65.
+        assert float(cues[:, len(SCALES), 7].min()) > (0.99 if name == "kdtree" else 0.85), name
+        world = torch.stack(
+            [
+                to_world(patches.scales.normals[i], patches.rotation[i].expand(len(SCALES) + 2, 3, 3))
+                for i in range(len(rows))
+            ]
+        )
+        assert _angle_deg(world.reshape(-1, 3), truth).max() < 0.5, name  # every candidate on the plane's normal

@@ -247,7 +247,8 @@ def test_a_state_written_before_scales_existed_resumes_as_a_run_without_them(tmp
     run_dir = tmp_path / "old_state"
     train.run(_args("--encoder-epochs 1 --regressor-epochs 1", run_dir))
     state = torch.load(run_dir / "state.pt", weights_only=True)
-    del state["recipe"]["scales"]
+    for added in ("scales", "inlier_seeds", "range_frames"):  # fields added after such a state was written
+        del state["recipe"][added]
     torch.save(state, run_dir / "state.pt")
     train.run(_args("--encoder-epochs 1 --regressor-epochs 2 --resume", run_dir))
     history = json.loads((run_dir / "history.json").read_text())["history"]
@@ -286,6 +287,19 @@ def test_range_frames_join_the_training_and_validation_clouds_at_their_metric_ra
 def test_inlier_seeds_without_scales_are_one_usage_error(tmp_path):
     with pytest.raises(UsageError, match="--inlier-seeds needs --scales"):
         train.recipe_from_args(_args("--inlier-seeds 16", tmp_path))
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        ("--scales 4 8 --inlier-seeds 2", "--inlier-seeds: scales must be integers >= 3"),
+        ("--scales 8 256", r"--scales: 256 is more than the 128-point pool"),  # TOY's k = 32
+        ("--scales 8 16 --inlier-seeds 200", r"--inlier-seeds: 200 is more than the 128-point pool"),
+    ],
+)
+def test_fit_counts_are_refused_with_the_flag_that_is_wrong(flags, message, tmp_path):
+    with pytest.raises(UsageError, match=message):
+        train.recipe_from_args(_args(flags, tmp_path))
 
 
 def test_the_default_recipe_is_the_shipped_checkpoints_scale_head_with_inlier_fits_and_range_frames(tmp_path):

@@ -86,7 +86,6 @@ def _positive_float(text: str) -> float:
 
 def recipe_from_args(args: argparse.Namespace):
     """The preset with every given option applied, checked."""
-    from ..core.scales import check_scales
     from ..training.recipes import RECIPES, Recipe, check_counts
 
     overrides = {
@@ -95,20 +94,31 @@ def recipe_from_args(args: argparse.Namespace):
     if args.no_triplet:
         overrides["triplet"] = False
     recipe = dataclasses.replace(RECIPES[args.recipe], **overrides)
-    try:
-        check_scales(recipe.scales)
-        check_scales(recipe.inlier_seeds)
-    except ValueError as error:
-        raise UsageError(f"--scales: {error}") from None
-    if recipe.inlier_seeds and not recipe.scales:
-        raise UsageError("--inlier-seeds needs --scales (they are candidates of the scale head)")
     if args.relative_floor_deg is not None and recipe.loss != "relative":
         raise UsageError(f"--relative-floor-deg only applies to --loss relative (this run uses {recipe.loss!r})")
     try:
         check_counts(recipe)
     except TrainingError as error:  # a bad option value: a usage error (status 2), like argparse's own
         raise UsageError(str(error)) from None
+    _check_fits(recipe)  # after the counts: it needs a valid k
     return recipe
+
+
+def _check_fits(recipe) -> None:
+    """The scale head's counts: valid, and within the pool (POOL_FACTOR × k) that they choose their points from."""
+    from ..core.conventions import POOL_FACTOR
+    from ..core.scales import check_scales
+
+    pool = POOL_FACTOR * recipe.k
+    for flag, counts in (("--scales", recipe.scales), ("--inlier-seeds", recipe.inlier_seeds)):
+        try:
+            check_scales(counts)
+        except ValueError as error:
+            raise UsageError(f"{flag}: {error}") from None
+        if counts and max(counts) > pool:
+            raise UsageError(f"{flag}: {max(counts)} is more than the {pool}-point pool (4 × k = 4 × {recipe.k})")
+    if recipe.inlier_seeds and not recipe.scales:
+        raise UsageError("--inlier-seeds needs --scales (they are candidates of the scale head)")
 
 
 def run(args: argparse.Namespace) -> int:

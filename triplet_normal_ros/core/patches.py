@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import torch
 
-from .conventions import MIN_NEIGHBOURS
+from .conventions import MIN_NEIGHBOURS, POOL_FACTOR
 from .frames import canonical_signs, masked_covariance, principal_frames, surface_variation
 from .scales import ScaleFits, scale_fits
 
@@ -67,7 +67,7 @@ def build_patches(
         valid=valid,
         pca_normal=frame[:, 2],
         curvature=surface_variation(eigvals),
-        scales=scale_fits(local, mask, rot, tuple(scales), tuple(inlier_seeds)) if scales else None,
+        scales=scale_fits(local, mask, rot, tuple(scales), tuple(inlier_seeds), POOL_FACTOR * k) if scales else None,
     )
 
 

@@ -56,13 +56,17 @@ def scale_fits(
     rotation: torch.Tensor,
     scales: tuple[int, ...],
     seeds: tuple[int, ...] = (),
+    pool_size: int | None = None,
 ) -> ScaleFits:
     """PCA of the nearest m pool points for each m in `scales`, of the whole pool, and the inlier fits grown from the
     nearest s points for each s in `seeds`, all seen from the patch frame.
 
     `local` (B, P, 3): pool offsets from the query in units of the radius; `mask` (B, P); `rotation` (B, 3, 3) world
     -> patch frame. Pools need not be sorted (the pixel-grid search samples the ball), so the nearest are found here.
-    A scale with fewer than 3 points falls back to the whole pool's fit, and its fill cue says so.
+    `pool_size` is the pool the estimator asked for (POOL_FACTOR × k; default the array's width): the whole pool's
+    fill is its count over that, at most 1, so a pixel-grid pool (wider array, whole ball) reads as full like the
+    KD-tree's nearest-512 pool that training sees. A scale short of m points fits what there is (its fill says so);
+    one below 3 points, possible only in a pool that is invalid anyway, falls back to +z with zero cues.
     """
     # float32 and batched matmuls: coordinates are in radii (|x| <= 1), so float32 leaves a normal error far below a
     # microradian, and the fits cost about a third of the float64 elementwise version (docs/RESULTS.md).
@@ -76,7 +80,7 @@ def scale_fits(
     near_dist2 = torch.gather(dist2, 1, order)
     weight = mask.to(torch.float32)
     views = [(near[:, :m], near_weight[:, :m], near_dist2[:, :m], m) for m in scales]
-    views.append((local, weight, dist2, local.shape[1]))
+    views.append((local, weight, dist2, pool_size or local.shape[1]))
     valid = weight.sum(dim=1).clamp_min(1)
     views += [(local, _inliers(local, weight, order[:, :s]), dist2, valid) for s in seeds]
     fits = [_fit(points, w, d2, m, rotation) for points, w, d2, m in views]
@@ -132,7 +136,7 @@ def _fit(points: torch.Tensor, weight: torch.Tensor, dist2: torch.Tensor, m, rot
     world_normal = torch.einsum("bji,bj->bi", rotation, normal)  # back to world axes, signed as above
     offset = -(mean * world_normal).sum(dim=1)  # the query (origin) above the fitted plane, in radii
     reach = (dist2 * weight).amax(dim=1).sqrt()
-    fill = weight.sum(dim=1) / m
+    fill = (weight.sum(dim=1) / m).clamp_max(1.0)
     cues = torch.stack((variation, linearity, offset, reach, fill), dim=1)
     cues = torch.where(ok.unsqueeze(-1), cues, 0.0)
     return normal, torch.cat((normal, cues), dim=1)

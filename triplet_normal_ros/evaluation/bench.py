@@ -20,13 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
+from ..core.conventions import DEPTH_RADIUS, POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 
 NOISE_REL = 0.005
 WARMUP_QUERIES = 256
 #: Queries of the run that measures the per-cloud (fixed) cost.
 FIXED_QUERIES = 16
-DEPTH_RADIUS = 0.05
 #: PCA is also timed with Open3D's usual hybrid cap (KDTreeSearchParamHybrid(radius, max_nn=30)) for comparison.
 PCA_SMALL_K = 30
 STAGES = ("neighbours", "pca", "gate", "patches", "network")

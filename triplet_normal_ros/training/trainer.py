@@ -407,7 +407,10 @@ def _check_resumable(state: dict, recipe: Recipe, run_dir: Path) -> None:
     before = {f: saved.get(f, defaults[f]) for f in RESUME_FIXED}
     changed = [f"{f}: {before[f]!r} -> {getattr(recipe, f)!r}" for f in RESUME_FIXED if before[f] != getattr(recipe, f)]
     if changed:
-        raise TrainingError(f"cannot resume {run_dir} with a different recipe ({'; '.join(changed)})")
+        raise TrainingError(
+            f"cannot resume {run_dir} with a different recipe ({'; '.join(changed)}); pass the flags it started with"
+            " (the default recipe is 'scales'; a run started as --recipe cpu needs --recipe cpu)"
+        )
 
 
 def _load_encoder(model: TripletNormalNet, path: Path) -> None:
