@@ -110,7 +110,11 @@ def _inliers(local: torch.Tensor, weight: torch.Tensor, seed: torch.Tensor) -> t
 
 def _plane(points: torch.Tensor, weight: torch.Tensor) -> tuple[torch.Tensor, ...]:
     """PCA of the points with 0/1 `weight` (B, P) (zeroed points where it is 0): ascending eigenvalues (B, 3), world
-    normal (B, 3), mean (B, 3), ok (B,) (at least 3 points)."""
+    normal (B, 3), mean (B, 3), ok (B,) (at least 3 points).
+
+    Not `frames.masked_covariance` + `principal_frames`: those zero masked-out entries on every call (padding may be
+    NaN), while these points are zeroed once in `scale_fits` and refitted with many masks; the shared pair made the
+    fits about half again slower in a side-by-side timing, with the same results to 1e-6."""
     count = weight.sum(dim=1)
     ok = count >= MIN_NEIGHBOURS
     scale = count.clamp_min(1)

@@ -47,6 +47,10 @@ class Recipe:
     shapes: list[str] | None = None
     val_shapes: list[str] | None = None
 
+    def fit_options(self) -> dict[str, tuple[int, ...]]:
+        """The scale head's plane fits, as `TripletNormalNet`, `PatchSampler` and `build_patches` take them."""
+        return {"scales": tuple(self.scales), "inlier_seeds": tuple(self.inlier_seeds)}
+
 
 #: Recipe fields that decide what a run optimises: a resumed run must keep them (epoch counts may grow).
 RESUME_FIXED = (

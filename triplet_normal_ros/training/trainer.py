@@ -129,8 +129,7 @@ def _start(recipe: Recipe, run_dir: Path, dev: torch.device, resume: bool, encod
     state = _load_state(run_dir) if resume else None
     if state:
         _check_resumable(state, recipe, run_dir)
-    fits = (tuple(recipe.scales), tuple(recipe.inlier_seeds))
-    model = TripletNormalNet(tuple(recipe.encoder), tuple(recipe.regressor), recipe.residual, *fits)
+    model = TripletNormalNet(tuple(recipe.encoder), tuple(recipe.regressor), recipe.residual, **recipe.fit_options())
     model = model.to(dev)
     if state:
         model.load_state_dict(state["model"])
@@ -174,7 +173,7 @@ def _samplers(recipe: Recipe, split: str) -> list[PatchSampler]:
 
     shapes = recipe.shapes if split == "train" else recipe.val_shapes
     clouds = build_dataset(split=split, n_points=recipe.n_points, seed=recipe.seed, shapes=shapes)
-    fits = {"scales": tuple(recipe.scales), "inlier_seeds": tuple(recipe.inlier_seeds)}
+    fits = recipe.fit_options()
     samplers = [PatchSampler(c.points, c.normals, recipe.radius_rel, recipe.k, **fits) for c in clouds]
     return samplers + _range_samplers(recipe, split)
 
@@ -191,7 +190,7 @@ def _range_samplers(recipe: Recipe, split: str) -> list[PatchSampler]:
     count, seed = (recipe.range_frames, TRAIN_SEED) if train else (max(1, recipe.range_frames // 3), VAL_SEED)
     frames = [(f, DEPTH_RADIUS) for f in depth_frames(count, seed)]
     frames += [(f, LIDAR_RADIUS) for f in lidar_scans(count, seed)]
-    fits = {"scales": tuple(recipe.scales), "inlier_seeds": tuple(recipe.inlier_seeds)}
+    fits = recipe.fit_options()
     return [
         PatchSampler(f.points.reshape(-1, 3), f.normals.reshape(-1, 3), recipe.radius_rel, recipe.k, radius=r, **fits)
         for f, r in frames
