@@ -20,6 +20,7 @@ from typing import Any
 
 import pytest
 
+from triplet_normal_ros.ros.node_process import params_file
 from triplet_normal_ros.ros.transport import PROFILE_ENV, choose_profile
 
 REPO = Path(__file__).resolve().parents[1]
@@ -32,7 +33,7 @@ TEST_CACHE = REPO / ".cache"
 #: Caches the tests (and the processes they start) would otherwise fill under $HOME, redirected under TEST_CACHE.
 #: The generated-data cache persists there between runs, so only the first run pays for generating the shapes.
 PRIVATE_CACHES = {
-    "TRIPLET_NORMAL_CACHE": "test-data",  # training.dataset.default_cache_dir
+    "TRIPLET_NORMAL_CACHE": "test-data",  # simulation.cache.default_cache_dir
     "MPLCONFIGDIR": "test-matplotlib",
     "TORCH_HOME": "test-torch",
     "XDG_CACHE_HOME": "test-xdg",
@@ -113,25 +114,9 @@ def installed_env(prefix: Path, ros_env: Mapping[str, str]) -> dict[str, str]:
     return env
 
 
-def _yaml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return f'"{value}"'
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(_yaml_value(v) for v in value) + "]"
-    return repr(value)
-
-
 def params_yaml(path: Path, params: Mapping[str, Any], reliable_topics: tuple[str, ...] = ()) -> Path:
     """A ROS 2 parameter file for every node (``/**``); ``reliable_topics`` get a subscription QoS override."""
-    lines = ["/**:", "  ros__parameters:"] + [f"    {k}: {_yaml_value(v)}" for k, v in params.items()]
-    if reliable_topics:
-        lines.append("    qos_overrides:")
-        for topic in reliable_topics:
-            lines += [f"      {topic}:", "        subscription:", "          reliability: reliable"]
-    path.write_text("\n".join(lines) + "\n")
-    return path
+    return params_file(path, params, reliable_topics)
 
 
 class NodeProcess:

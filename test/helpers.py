@@ -1,14 +1,21 @@
 """Helpers shared by tests in several folders, importable as ``helpers`` (test/conftest.py puts test/ on sys.path).
 
 Only test code uses these, so they live here rather than in the package. Training-related helpers come first; add
-other layers' helpers in their own section.
+other layers' helpers in their own section. The node's answer (last section) needs no rclpy: `ros/params.py` is
+plain data.
 """
 
+import tracemalloc
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from triplet_normal_ros.core.cloud import CloudNormals, estimate_cloud
+from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.io.cloud_files import write_normals
+from triplet_normal_ros.ros.params import SPECS, NodeSettings, apply
 from triplet_normal_ros.training.dataset import LabelledCloud, build_dataset
 
 # --- training data -------------------------------------------------------------------------------------------------
@@ -34,3 +41,46 @@ def write_points(path: str | Path, points: np.ndarray, normals: np.ndarray | Non
         np.savetxt(path, np.asarray(points, dtype=np.float64), fmt="%.6f")
         return
     write_normals(path, points, np.full(np.shape(points), np.nan) if normals is None else normals)
+
+
+# --- the node's answer ---------------------------------------------------------------------------------------------
+
+
+def node_settings(params: Mapping[str, Any]) -> NodeSettings:
+    """The settings a node started with parameter file `params` runs with: every declared default, then `params`."""
+    return apply(NodeSettings(), {**{spec.name: spec.default for spec in SPECS}, **params})
+
+
+def node_estimator(params: Mapping[str, Any]) -> NormalEstimator:
+    """An estimator built the way the node builds its own from `params` (same method, device, neighbours, ...)."""
+    return NormalEstimator(**node_settings(params).estimator_args())
+
+
+def node_answer(
+    params: Mapping[str, Any],
+    points: np.ndarray,
+    shape: tuple[int, int] | None,
+    estimator: NormalEstimator | None = None,
+) -> CloudNormals:
+    """What a node running with `params` publishes for a cloud of `points` (N, 3) and (height, width) `shape`: the
+    node's per-cloud step, with its estimator (`estimator`, when given, must come from `node_estimator(params)`)."""
+    settings = node_settings(params)
+    estimator = estimator or node_estimator(params)
+    viewpoint = settings.viewpoint if settings.orient else None
+    return estimate_cloud(estimator, points, shape=shape, viewpoint=viewpoint)
+
+
+#: What parsing a small file or message that claims a huge size may allocate at most: far below what the claim needs.
+ALLOCATION_BOUND = 1 << 20
+
+
+def peak_allocation(call: Callable[[], object]) -> tuple[object, int]:
+    """What ``call`` returns and the peak of the memory it held allocated at once (tracemalloc: Python objects and
+    numpy arrays alike). It runs once untraced first, so that imports done on first use do not count."""
+    call()
+    tracemalloc.start()
+    try:
+        got = call()
+        return got, tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()

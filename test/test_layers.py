@@ -1,9 +1,11 @@
 """The package's layering: imports run downward only, there are no cycles, and only ros/ needs rclpy.
 
-Layer order: errors < core, io < training < evaluation < cli < ros. core and io share a layer but do not import each
-other, and io does not import torch (message and file conversion stay light). The static checks read every module's
-source with ``ast``, imports inside functions included, so a lazy upward import counts too. The dynamic check imports
-every module below ros/ in a fresh interpreter where rclpy cannot be imported (marked slow: it starts a process).
+Layer order: errors < core, io < simulation < training < evaluation < cli < ros. core and io share a layer but do not
+import each other; io does not import torch (message and file conversion stay light), and neither does simulation
+(sensor simulation is numpy and scipy), which needs no file or message conversion either, so it may not import io.
+The static checks read every module's source with ``ast``, imports inside functions included, so a lazy upward
+import counts too. The dynamic check imports every module below ros/ in a fresh interpreter where rclpy cannot be
+imported (marked slow: it starts a process).
 """
 
 from __future__ import annotations
@@ -21,13 +23,16 @@ import triplet_normal_ros
 ROOT = triplet_normal_ros.__name__
 PACKAGE_DIR = Path(triplet_normal_ros.__file__).parent
 #: Rank of each top-level part; the root package itself (``__version__`` only) ranks with errors.
-LAYERS = {"": 0, "errors": 0, "core": 1, "io": 1, "training": 2, "evaluation": 3, "cli": 4, "ros": 5}
-#: Pairs of parts of the same rank that must not import each other either way.
-APART = {("core", "io"), ("io", "core")}
+LAYERS = {"": 0, "errors": 0, "core": 1, "io": 1, "simulation": 2, "training": 3, "evaluation": 4, "cli": 5, "ros": 6}
+#: (importer, imported) pairs that are refused even where the ranks would allow the import.
+APART = {("core", "io"), ("io", "core"), ("simulation", "io")}
 #: Third-party imports a part must not make, each with the reason.
-FORBIDDEN = {"io": {"torch": "io converts messages and files, it needs no torch"}}
+FORBIDDEN = {
+    "io": {"torch": "io converts messages and files, it needs no torch"},
+    "simulation": {"torch": "simulated sensors are numpy and scipy, they need no torch"},
+}
 ROS_ONLY = "rclpy"
-ROS_FREE = ("core", "io", "training", "evaluation")
+ROS_FREE = ("core", "io", "simulation", "training", "evaluation")
 
 
 def module_files() -> dict[str, Path]:
@@ -71,7 +76,7 @@ def graph(sources: dict[str, tuple[str, bool]]) -> dict[str, set[str]]:
 
 
 def violations(edges: dict[str, set[str]]) -> list[str]:
-    """Every import that runs upward, crosses core/io, or pulls in what a part must not import."""
+    """Every import that runs upward, crosses a pair in APART, or pulls in what a part must not import."""
     found = []
     for src, targets in sorted(edges.items()):
         for dst in sorted(targets):
@@ -149,6 +154,8 @@ def test_the_checks_catch_what_they_are_for() -> None:
         f"{ROOT}.io.c": ("import torch\nfrom rclpy.node import Node\nfrom .. import __version__\n", False),
         f"{ROOT}.ros": ("", True),
         f"{ROOT}.ros.node": ("import rclpy\nfrom ..core import a\n", False),
+        f"{ROOT}.simulation": ("", True),
+        f"{ROOT}.simulation.d": ("import torch\nfrom ..io import c\n", False),
     }
     edges = graph(sources)
     assert edges[f"{ROOT}.core.a"] == {f"{ROOT}.core.b", f"{ROOT}.ros.node"}
@@ -159,6 +166,8 @@ def test_the_checks_catch_what_they_are_for() -> None:
         f"{ROOT}.core.b imports {ROOT}.io.c (core may not import io)",
         f"{ROOT}.io.c imports rclpy.node: only ros/ may import rclpy",
         f"{ROOT}.io.c imports torch: io converts messages and files, it needs no torch",
+        f"{ROOT}.simulation.d imports torch: simulated sensors are numpy and scipy, they need no torch",
+        f"{ROOT}.simulation.d imports {ROOT}.io.c (simulation may not import io)",
     ]
     assert cycles(edges) == [[f"{ROOT}.core.a", f"{ROOT}.core.b", f"{ROOT}.ros.node"]]
 

@@ -1,4 +1,4 @@
-"""Score checkpoints side by side against issue #12's targets, in one run, faster than `triplet-normal eval`.
+"""Score checkpoints side by side against the accuracy targets of docs/RESULTS.md, in one run, faster than `eval`.
 
 For each checkpoint: the learned method's MSAE on the validation clouds (eval's query points, fewer per cloud, no
 oracle and no floor), as ratios to PCA over the same pool at the same points, grouped as the targets are (clean CAD,
@@ -44,7 +44,7 @@ def _mean_msae(rows: list[dict], name: str, keep) -> float:
 
 
 def target_table(rows: list[dict], names: list[str]) -> str:
-    """Ratios to PCA over the pool, grouped like issue #12's targets."""
+    """Ratios to PCA over the pool, grouped as the targets of docs/RESULTS.md ("Targets") are."""
     groups = [
         ("clean CAD", lambda r: r["kind"] == "cad" and r["noise"] == 0),
         ("CAD 0.5 + 1 % pooled", lambda r: r["kind"] == "cad" and r["noise"] in (0.005, 0.01)),

@@ -1,4 +1,4 @@
-"""Where the remaining distance to the Bayes floor goes, on the noisy CAD validation clouds (issue #12).
+"""Where the remaining distance to the Bayes floor goes, on the noisy CAD validation clouds.
 
 For each checkpoint, at eval's query points of the CAD validation clouds at the given noise levels: the learned
 method's squared angle, PCA's over the same pool, and the floor's (`evaluation/floor.py`). Points are split by the

@@ -23,7 +23,7 @@ from triplet_normal_ros.core.neighbours import NeighbourIndex
 from triplet_normal_ros.evaluation.evaluate import query_indices, validation_clouds
 from triplet_normal_ros.evaluation.metrics import angles_rad
 from triplet_normal_ros.ros.replay import FRAMES, load_frame
-from triplet_normal_ros.training.range_scans import depth_frames, lidar_scans
+from triplet_normal_ros.simulation.range_scans import depth_frames, lidar_scans
 
 F_GATE = 10.0
 BENDS = (0.0, 0.01, 0.02, 0.03, 0.04, 0.06)
@@ -34,14 +34,19 @@ def scores(learned: NormalEstimator, points: np.ndarray, query: np.ndarray, radi
     """Learned and pool-PCA normals at `query`, with both halves of the gate."""
     learned.radius = radius
     normals, _ = learned.estimate(points, query)
-    idx, _ = NeighbourIndex(points).ball(points[query], radius, POOL_FACTOR * learned.k)
+    return {"learned": normals} | pool_gate(points, query, radius, POOL_FACTOR * learned.k)
+
+
+def pool_gate(points: np.ndarray, query: np.ndarray, radius: float, size: int) -> dict[str, np.ndarray]:
+    """PCA over each query's pool of `size` (the KD-tree's nearest in the ball) and the quadric gate's two halves."""
+    idx, _ = NeighbourIndex(points).ball(points[query], radius, size)
     pool, cloud = torch.from_numpy(idx), torch.from_numpy(points)
     mask = pool >= 0
     local = (cloud[pool.clamp_min(0)] - cloud[torch.from_numpy(query)].unsqueeze(1)) / radius
     local = torch.where(mask.unsqueeze(-1), local, 0.0)
     _, frame = principal_frames(masked_covariance(local, mask), mask.sum(dim=1) >= 3)
     gain = quadric_gain(local, mask, frame)
-    return {"learned": normals, "pca": frame[:, 2].numpy(), "f": gain.f.numpy(), "bend": gain.bend.numpy()}
+    return {"pca": frame[:, 2].numpy(), "f": gain.f.numpy(), "bend": gain.bend.numpy()}
 
 
 def range_set(learned: NormalEstimator, frames: list, radius: float, stride: int) -> list[dict]:

@@ -12,14 +12,13 @@ Run: .venv/bin/python docs/tools/node_latency.py   (about 5 minutes on 2 quiet C
 
 import argparse
 import os
-import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
 
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.ros.demo import _node_env, _params_file, _stop, _wait_for
+from triplet_normal_ros.ros.node_process import node_env, params_file, start_node, stop_node, wait_for_node
 from triplet_normal_ros.ros.replay import SENSOR_INPUT, ReplayClient, load_frame
 
 INPUT, OUTPUT = "/latency/points", "/latency/normals"
@@ -29,14 +28,6 @@ RUNS = (
     ("pca, k = 30", {"method": "pca", "radius": RADIUS, "k": 30}, 5),
     ("hybrid (default)", {"method": "hybrid", "radius": RADIUS, "k": 0}, 2),
 )
-
-
-def start_node(prefix: Path, out: Path, env: dict[str, str]) -> subprocess.Popen:
-    params = _params_file(out / "latency_params.yaml", {**RUNS[0][1], "stats_period": 30.0})
-    args = [str(prefix / "lib" / "triplet_normal_ros" / "node"), "--ros-args", "--params-file", str(params)]
-    args += ["-r", f"input:={INPUT}", "-r", f"output:={OUTPUT}"]
-    log = (out / "node.log").open("w")
-    return subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=out)
 
 
 def round_trips(client: ReplayClient, frame, repeats: int) -> list[float]:
@@ -70,13 +61,15 @@ def main() -> None:
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     frame = load_frame("table_scene_mug")
-    env = _node_env(args.prefix.resolve())
+    prefix, out = args.prefix.resolve(), args.out.resolve()
+    env = node_env(prefix)
     os.environ.update({k: v for k, v in env.items() if k.startswith(("ROS_", "RCUTILS_"))})
-    node = start_node(args.prefix.resolve(), args.out.resolve(), env)
+    first = params_file(out / "latency_params.yaml", {**RUNS[0][1], "stats_period": 30.0})
+    node = start_node(prefix, first, {"input": INPUT, "output": OUTPUT}, out / "node.log", env)
     rows = []
     try:
         with ReplayClient(INPUT, OUTPUT, input_qos=SENSOR_INPUT) as client:
-            _wait_for(client, node, args.out.resolve())
+            wait_for_node(client, node, out / "node.log")
             for label, params, repeats in RUNS:
                 ok, reason = client.set_parameters(params)
                 assert ok, reason
@@ -84,7 +77,7 @@ def main() -> None:
                 alone = estimator_alone(frame, params, repeats)
                 rows.append((label, repeats, float(np.median(trips)), float(np.median(alone))))
     finally:
-        _stop(node)
+        stop_node(node)
     print("| method | frames | node: publish to answer, s | estimator alone, s | node adds | node / estimator |")
     print("| --- | ---: | ---: | ---: | ---: | ---: |")
     for label, repeats, trip, alone in rows:

@@ -14,7 +14,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from triplet_normal_ros.training.range_scans import EDGE_RADIUS, depth_frame, lidar_scan
+from triplet_normal_ros.simulation.depth_camera import depth_frame
+from triplet_normal_ros.simulation.edges import EDGE_RADIUS
+from triplet_normal_ros.simulation.lidar import lidar_scan
 
 REPO = Path(__file__).resolve().parents[2]
 

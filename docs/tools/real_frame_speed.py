@@ -15,7 +15,8 @@ from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.ros.replay import FRAMES, load_frame
 
 RADIUS = 0.05
-CONTENDERS = {
+#: Each timed estimator: its label in the table -> its NormalEstimator options (radius and device are shared).
+METHODS = {
     "pca, k = 30": {"method": "pca", "k": 30},
     "learned": {"method": "learned"},
     "hybrid, F gate alone (bend 0)": {"method": "hybrid", "bend": 0.0},
@@ -38,12 +39,12 @@ def main() -> None:
         points = frame.xyz.reshape(-1, 3).astype(np.float64)
         valid = int(np.isfinite(points).all(axis=1).sum())
         seconds, shares = {}, {}
-        for label, options in CONTENDERS.items():
+        for label, options in METHODS.items():
             estimator = NormalEstimator(radius=RADIUS, device="cpu", **options)
             estimator.estimate(frame.xyz[200:240, 300:340].reshape(-1, 3).astype(np.float64), shape=(40, 40))
             seconds[label] = timed(estimator, points, frame.shape)
             shares[label] = estimator.last_run.network_fraction
-        for label in CONTENDERS:
+        for label in METHODS:
             share = "-" if label.startswith("pca") else f"{shares[label]:.0%}"
             print(
                 f"| {name} | {valid:,} | {label} | {seconds[label]:.1f} | {share} | "

@@ -23,7 +23,8 @@ from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.evaluation.evaluate import VAL_POINTS, VAL_SEED, query_indices
 from triplet_normal_ros.evaluation.floor import bayes_normals
 from triplet_normal_ros.evaluation.metrics import angles_rad
-from triplet_normal_ros.training.dataset import _seed, build_dataset, normalise, sample_surface
+from triplet_normal_ros.simulation.seeds import derive_seed
+from triplet_normal_ros.training.dataset import build_dataset, normalise, sample_surface
 from triplet_normal_ros.training.shapes import catalogue
 
 SAMPLES_PER_PATCH = 150  # dense samples per 2πσ² of surface: the posterior's effective area
@@ -35,7 +36,7 @@ PCA_POOL = 512  # eval's PCA pool: POOL_FACTOR × the shipped k = 128
 
 def shape_floor(spec, level: float, queries: int) -> tuple[float, float, float]:
     """(floor MSAE, its posterior expectation, PCA 5% MSAE) of one smooth validation cloud at `queries` points."""
-    raw, _ = sample_surface(spec, VAL_POINTS, np.random.default_rng(_seed(VAL_SEED, spec.name, "sample")))
+    raw, _ = sample_surface(spec, VAL_POINTS, np.random.default_rng(derive_seed(VAL_SEED, spec.name, "sample")))
     clean, centre, diagonal = normalise(raw)
     sigma = level * float(np.linalg.norm(np.ptp(clean.astype(np.float32).astype(np.float64), axis=0)))
     cloud = build_dataset("val", VAL_POINTS, VAL_SEED, shapes=[spec.name], noise_levels=[level], progress=False)[0]

@@ -1,13 +1,13 @@
 """Soak under overload: flood the colcon-installed node (PCA) with clouds of 3k to 128k points, much faster than it
-can process them, and measure its memory, drops, answers and SIGINT exit time (issue #11 item 5).
+can process them, and measure its memory, drops, answers and SIGINT exit time.
 
 Run from the repository root:
     .venv/bin/python docs/tools/soak.py [--seconds 120] [--rate 20] [--prefix INSTALL] [--out docs/RESULTS.md]
 
 Without --prefix it colcon-builds the checkout into out/soak_ws first. The node runs on a private, localhost-only ROS
 graph; its log goes to out/soak/node.log. The soak itself (the clouds, the checks on every answer, RSS sampling, the
-node's drop counts) is test/ros/overload.py, which test/ros/test_soak.py runs for 90 s. --out writes the `soak`
-block of the results file; the figures are printed either way.
+node's drop counts) is triplet_normal_ros/ros/overload.py, which test/ros/test_soak.py runs for 100 s. --out writes the
+`soak` block of the results file; the figures are printed either way.
 """
 
 from __future__ import annotations
@@ -16,56 +16,70 @@ import argparse
 import os
 import random
 import shlex
-import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
 
 from tqdm import tqdm
 
+from triplet_normal_ros.evaluation.report import update_section
+from triplet_normal_ros.ros.node_process import node_env, params_file, start_node, stop_node, wait_for_node
+from triplet_normal_ros.ros.overload import NODE_PARAMS, RSS_EVERY_S, OverloadClient, SoakResult, cloud_pool, soak
+
 REPO = Path(__file__).resolve().parents[2]
-sys.path[:0] = [str(REPO / "test"), str(REPO / "test" / "ros")]  # the soak lives beside the test that runs it
-
-from conftest import NodeProcess, colcon_build, installed_env, params_yaml  # noqa: E402
-from overload import NODE_PARAMS, RSS_EVERY_S, OverloadClient, SoakResult, cloud_pool, soak  # noqa: E402
-
-from triplet_normal_ros.evaluation.report import update_section  # noqa: E402
 
 IN, OUT = "/soak/points", "/soak/normals"
 
 
-def private_ros_env(folder: Path) -> dict[str, str]:
-    """This process's environment on a ROS graph of its own (as the tests' ``ros_env``), with ROS logs in ``folder``."""
+def private_ros_env(folder: Path) -> None:
+    """This process on a ROS graph of its own (domains 101-200, apart from the tests' 1-100), ROS logs in `folder`;
+    the node inherits it through `node_env`."""
     os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(101, 200))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ["RCUTILS_COLORIZED_OUTPUT"] = "0"
     os.environ["PYTHONUNBUFFERED"] = "1"
     os.environ["ROS_HOME"] = str(folder / "ros")
-    return dict(os.environ)
+
+
+def colcon_build(workspace: Path) -> Path:
+    """`colcon build` this checkout into `workspace`; the package's install prefix."""
+    workspace.mkdir(parents=True, exist_ok=True)
+    cmd = [str(Path(sys.executable).with_name("colcon")), "--log-base", str(workspace / "log"), "build"]
+    cmd += ["--base-paths", str(REPO), "--build-base", str(workspace / "build")]
+    cmd += ["--install-base", str(workspace / "install")]
+    if subprocess.run(cmd, cwd=workspace).returncode != 0:
+        raise SystemExit(f"soak: colcon build failed; see {workspace / 'log'}")
+    return workspace / "install" / "triplet_normal_ros"
+
+
+def timed_stop(node: subprocess.Popen) -> tuple[int | None, float]:
+    """SIGINT while the node is still overloaded: (exit code or None if it had to be killed, seconds to exit)."""
+    start = time.monotonic()
+    code = stop_node(node)
+    return code, time.monotonic() - start
 
 
 def run(prefix: Path, folder: Path, seconds: float, rate: float) -> SoakResult:
-    env = installed_env(prefix, private_ros_env(folder))
-    params = params_yaml(folder / "params.yaml", NODE_PARAMS, reliable_topics=(IN,))
-    node = NodeProcess(prefix, env, params, {"input": IN, "output": OUT}, folder / "node.log")
+    private_ros_env(folder)
+    log = folder / "node.log"
+    params = params_file(folder / "params.yaml", NODE_PARAMS, reliable_topics=(IN,))
+    node = start_node(prefix, params, {"input": IN, "output": OUT}, log, node_env(prefix))
     try:
-        if not node.wait_for_log("ready:", 120):
-            raise SystemExit(f"soak: the node did not come up; see {node.log_path}")
         with OverloadClient(IN, OUT, cloud_pool()) as client:
-            if not client.wait_for_node(60):
-                raise SystemExit("soak: the node's topics never matched")
+            wait_for_node(client, node, log)
             with tqdm(total=round(seconds), unit="s", desc="soak") as bar:
                 result = soak(
-                    node.proc.pid,
-                    lambda: node.stop(signal.SIGINT),
-                    lambda: node.log,
+                    node.pid,
+                    lambda: timed_stop(node),
+                    lambda: log.read_text(errors="replace"),
                     client,
                     seconds,
                     rate,
                     lambda elapsed: bar.update(min(round(seconds), int(elapsed)) - bar.n),
                 )
     finally:
-        node.close()
+        stop_node(node)
     return result
 
 

@@ -8,6 +8,7 @@ cloud skipped with a warning, refusal to overwrite, resume after Ctrl-C, and eve
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -33,6 +34,7 @@ from rosbag_files import (
 
 from triplet_normal_ros.cli import bag as bag_command
 from triplet_normal_ros.cli.main import main
+from triplet_normal_ros.core import defaults
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.orientation import orient_towards_viewpoint
 from triplet_normal_ros.io import bag_output
@@ -204,9 +206,19 @@ def test_overwrite_refuses_a_symlinked_output_before_any_work(tmp_path: Path, ca
     assert link.is_symlink() and not partial_path(link).exists()
 
 
+def _written(segments: Path) -> int:
+    """How many input messages the closed segments of OUT.partial hold (0 before the first is closed)."""
+    ends = [int(m[2]) for p in segments.iterdir() if (m := re.match(r"^(\d{12})-(\d{12})$", p.name))]
+    return max(ends, default=0)
+
+
 @pytest.mark.slow
 def test_resumes_after_ctrl_c(tmp_path: Path, capsys) -> None:
-    """Interrupted after its first crash-safe segment, the run keeps its work; --resume finishes the rest."""
+    """Interrupted after its first crash-safe segment, the run keeps its work; --resume finishes the rest.
+
+    As soon as a closed segment shows the run estimating, it is paused (SIGSTOP), checked to have input messages
+    left, sent SIGINT and continued: however fast the machine, the Ctrl-C lands in the middle of the work.
+    """
     records = [
         Record("/points", CLOUD, 1_000 * (i + 1), cloud(organized_points(*SHAPE, phase=0.1 * i), i, height=SHAPE[0]))
         for i in range(30)
@@ -216,23 +228,31 @@ def test_resumes_after_ctrl_c(tmp_path: Path, capsys) -> None:
     argv = [str(source), str(out), "--topic", "/points", *PCA, "--segment-seconds", "0"]
     process = subprocess.Popen([SCRIPT, "bag", *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     segments = partial_path(out) / "segments"
-    deadline = time.monotonic() + 120
-    while not (segments.is_dir() and any(p.name != "open" for p in segments.iterdir())):
+    deadline = time.monotonic() + 120  # a hang guard: the first segment closes after the first cloud
+    while not (segments.is_dir() and _written(segments) > 0):
         assert process.poll() is None and time.monotonic() < deadline, process.communicate()
-        time.sleep(0.02)
-    process.send_signal(signal.SIGINT)
-    stdout, stderr = process.communicate(timeout=60)
+        time.sleep(0.005)
+    process.send_signal(signal.SIGSTOP)
+    try:
+        written = _written(segments)
+        assert written < len(records) and process.poll() is None and not out.exists(), "the run finished first"
+        process.send_signal(signal.SIGINT)
+    finally:
+        process.send_signal(signal.SIGCONT)
+    stdout, stderr = process.communicate(timeout=120)
     assert process.returncode == 130, (stdout, stderr)
     assert stderr.splitlines()[-1] == (
         f"triplet-normal: error: interrupted; finished work is kept in {partial_path(out)}: rerun with --resume"
     )
     assert not out.exists()
     line = run_fails(capsys, [*argv, "--radius", "0.2", "--resume"])
-    assert line.endswith(f"{partial_path(out)} was started with radius = 0.15, not 0.2; resume with the same input "
-                         "and options, or pass --overwrite to start again")
+    assert line.endswith(
+        f"{partial_path(out)} was started with radius = 0.15, not 0.2; resume with the same input "
+        "and options, or pass --overwrite to start again"
+    )
     summary = run_ok(capsys, [*argv, "--resume"])
     resumed_at = int(summary.split("resumed at input message ")[1].split(",")[0])
-    assert 1 <= resumed_at < len(records)
+    assert written <= resumed_at < len(records)  # the kept work is reused, and there was work left
     got = read_bag(out)
     assert [r.timestamp for r in got if r.topic == "/points"] == [r.timestamp for r in records]
     normals = [r for r in got if r.topic == "/points/normals"]
@@ -253,8 +273,8 @@ def test_resume_of_a_finished_run_refuses(tmp_path: Path, capsys) -> None:
 
 def test_defaults_are_the_nodes() -> None:
     node = NodeSettings()
-    assert (node.method, node.radius) == (bag_command.DEFAULT_METHOD, bag_command.DEFAULT_RADIUS)
-    assert tuple(node.viewpoint) == bag_command.DEFAULT_VIEWPOINT and node.orient
+    assert (node.method, node.radius) == (defaults.METHOD, defaults.RADIUS)
+    assert tuple(node.viewpoint) == defaults.VIEWPOINT and node.orient
     assert bag_command.SEGMENT_SECONDS == bag_output.SEGMENT_SECONDS
 
 

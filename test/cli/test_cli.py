@@ -201,7 +201,8 @@ def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
         rows = {c[0].strip(): c[1:] for c in cells}
         assert rows["learned"][3].strip() == "1.000"  # every row is also a ratio to learned
         share = rows["hybrid (F > 10, bend > 0.03)"][4].strip()
-        assert share.endswith("%") and 0 < int(share[:-1]) < 100  # hybrid says how much went to the network
+        assert share.endswith("%") and 0 <= float(share[:-1]) < 100  # hybrid says how much went to the network
+        assert rows["learned"][4].strip() == "100.0%" and rows["PCA, k = 30"][4].strip() == "-"
 
 
 def test_eval_without_pcpnet_dir_fails_before_working(tmp_path: Path) -> None:

@@ -71,10 +71,14 @@ def test_unorganized_or_mismatched_shapes_use_the_kdtree(shape) -> None:
     assert estimator.last_run.search == "kdtree"
 
 
-def test_auto_uses_the_kdtree_on_the_cpu() -> None:
-    estimator = NormalEstimator("pca", radius=0.05, device="cpu")
-    estimator.estimate(_pinhole_plane(), shape=(120, 160))
+def test_auto_uses_the_kdtree_for_pools_on_the_cpu() -> None:
+    """On a CPU the pools come from the KD-tree; the whole-ball window answers only default-k pca (test_integral)."""
+    estimator = NormalEstimator("learned", radius=0.05, device="cpu", checkpoint="lite")
+    estimator.estimate(_pinhole_plane(), np.arange(0, 120 * 160, 101), shape=(120, 160))
     assert estimator.last_run.search == "kdtree"
+    capped = NormalEstimator("pca", radius=0.05, k=30, device="cpu")
+    capped.estimate(_pinhole_plane(), shape=(120, 160))
+    assert capped.last_run.search == "kdtree"
 
 
 def test_nan_pixels_are_never_neighbours() -> None:

@@ -6,12 +6,22 @@ from triplet_normal_ros.core import throughput
 from triplet_normal_ros.core.estimator import NormalEstimator
 
 
-def test_probe_cloud_is_a_noisy_corner_at_the_estimators_scale() -> None:
+def test_probe_cloud_is_an_organized_room_corner_at_the_estimators_scale() -> None:
+    """Three planes seen by a pinhole camera: every pixel has a point, and a ball of the radius spans a few pixels."""
     cloud = throughput.probe_cloud(0.05)
-    assert cloud.shape == (throughput.PROBE_POINTS, 3)
-    assert 0.45 < np.ptp(cloud, axis=0).min() < 0.55  # the cube's side is 10 radii
-    on_a_face = (np.abs(cloud) < 0.005).any(axis=1)
-    assert on_a_face.mean() > 0.99  # every point lies on one of the three faces, up to the noise
+    assert cloud.shape == (throughput.PROBE_POINTS, 3) and np.isfinite(cloud).all()
+    height, width = throughput.PROBE_SHAPE
+    pitch = np.linalg.norm(np.diff(cloud.reshape(height, width, 3), axis=1), axis=-1)
+    assert 3 < 0.05 / np.median(pitch) < 12
+    larger = throughput.probe_cloud(0.5)
+    np.testing.assert_allclose(larger, cloud * 10, rtol=1e-12)
+
+
+def test_the_probe_runs_the_path_an_organized_frame_takes() -> None:
+    assert throughput.measure(NormalEstimator("pca", radius=0.05, device="cpu")).search == "window"
+    assert throughput.measure(NormalEstimator("pca", radius=0.05, k=30, device="cpu")).search == "kdtree"
+    text = throughput.measure(NormalEstimator("pca", radius=0.05, device="cpu")).describe("cpu")
+    assert "integral-image windows" in text
 
 
 def test_pca_is_measured_faster_than_learned_and_hybrid_reports_its_share() -> None:

@@ -1,15 +1,24 @@
-"""Accuracy regression: the shipped checkpoint on a CAD shape it never saw (from the validation catalogue) must stay
-clearly below PCA's error at the same radius, which is the reason the learned method exists.
+"""Accuracy of the shipped checkpoint on data it never trained on, in every regime docs/RESULTS.md reports.
 
-Measured when the checkpoint shipped (the scale head with inlier fits and range frames, issue #12), 5000 query
-points: MSAE 0.0163 against PCA's 0.0801 clean (0.20x; the previous checkpoint 0.38x), 0.0592 against 0.0882 at
-0.5 % noise (0.67x), 0.1085 against 0.1144 at 1 % (0.95x). On a smooth validation shape it must stay at PCA's level
-(1.02x at 1 %): that is what the relative loss bought (an earlier checkpoint was 1.09x PCA on it). Issue #12 asks for
-a failing test on a regression in any of its regimes, so the clean and lightly noisy smooth shape, eval's simulated
-depth frames and LiDAR scans, and the PCPNet cube are checked too. The bounds leave room for numeric drift, not for
-regressions.
+Two kinds of bound. *Regression bounds* sit just above the checkpoint's own measured figure, so that a regression
+which still meets the claims fails too (measured when it shipped, 5000 query points: held-out CAD MSAE ratios to PCA
+0.20x clean, 0.67x at 0.5 % noise, 0.95x at 1 %; smooth shape 1.03x at 1 %, 0.995x at 0.25 %, clean RMSE 0.613°
+against PCA's 0.892°; eval's depth frames 0.796x overall and 0.577x near edges, LiDAR scans 0.956x and 0.963x; PCPNet
+cube 5.03° clean and 12.82° at 0.6 %). *Claim bounds* carry meaning of their own and are the facts docs/RESULTS.md
+states: the learned method (and hybrid, the node's default) beats PCA over the same ball beyond the sampling error of
+the query points wherever RESULTS says it helps (the upper end of a 95 % paired bootstrap interval of the MSAE ratio
+below 1); on noisy CAD it stays above the Bayes floor (`evaluation/floor.py`: no estimator can beat it) and closes at
+least the share of the distance from PCA to that floor that RESULTS claims; it beats the best-radius PCA oracle where
+RESULTS says so; and where RESULTS claims only parity (LiDAR edges, the hybrid on LiDAR), the bound is "no worse than
+PCA", named so.
+
+PCA here is eval's: the same 5 % ball, every point of it up to the learned method's pool of 4k nearest.
 """
 
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,9 +26,9 @@ import pytest
 from helpers import HELDOUT_SHAPE, heldout_cad_cloud
 
 from triplet_normal_ros.core.checkpoint import default_checkpoint_path, read_metadata
-from triplet_normal_ros.core.conventions import POOL_FACTOR, bbox_diagonal
+from triplet_normal_ros.core.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.evaluation.metrics import msae
+from triplet_normal_ros.evaluation.metrics import angles_rad, ratio_interval
 from triplet_normal_ros.training.dataset import build_dataset
 
 pytestmark = pytest.mark.slow  # accuracy checks of the shipped checkpoint: `make test-fast` deselects this module
@@ -27,33 +36,113 @@ pytestmark = pytest.mark.slow  # accuracy checks of the shipped checkpoint: `mak
 QUERIES = 5000
 SMOOTH_SHAPE = "ellipsoid_flat"
 PCPNET_DIR = Path(__file__).resolve().parents[3] / "shared" / "data" / "pcpnet"  # ../shared beside the checkout
-#: Issue #12's other regimes, each bound the shipped checkpoint's measured value plus a margin (see each test).
-#: Measured: 0.613° against PCA's 0.892° clean; 0.995 x at 0.25 %; eval's depth frames 0.796 x overall and 0.577 x
-#: near edges; eval's LiDAR scans 0.956 x and 0.963 x; PCPNet cube 5.03° clean and 12.82° at 0.6 %.
-CLEAN_SMOOTH_RMSE_MARGIN_DEG = 0.1  # the issue's target: clean RMSE within 0.1° of PCA's ...
-CLEAN_SMOOTH_RMSE_BOUND_DEG = 0.67  # ... and near the measured 0.613°, so a regression that still meets it fails too
+PCPNET_URL = "http://geometry.cs.ucl.ac.uk/projects/2018/pcpnet/"
+
+# Regression bounds: the measured figure plus a margin for numeric drift.
+HELDOUT_BOUNDS = {0.0: 0.23, 0.005: 0.70, 0.01: 0.99}  # learned / PCA MSAE
+SMOOTH_NOISY_BOUND = 1.04  # learned / PCA MSAE at 1 % noise (measured 1.03x)
+CLEAN_SMOOTH_RMSE_MARGIN_DEG = 0.1  # the target: clean RMSE within 0.1° of PCA's (RESULTS: met, by being better)
+CLEAN_SMOOTH_RMSE_BOUND_DEG = 0.67  # near the measured 0.613°, so a regression that still beats PCA fails too
 LIGHT_SMOOTH_BOUND = 1.04
 DEPTH_BOUNDS = (0.83, 0.61)  # learned / PCA over the pool: overall, near edges
-LIDAR_BOUNDS = (0.99, 1.0)
-PCPNET_CUBE_BOUNDS = [(0.0, 5.5), (0.006, 13.3)]  # (noise, RMSE° bound)
+HYBRID_DEPTH_BOUNDS = (0.44, 0.75)  # hybrid (window survey) / PCA over the pool: overall, near edges
+LIDAR_BOUND = 0.99  # overall
+HYBRID_LIDAR_BOUND = 0.87  # hybrid / PCA over the pool, overall (measured 0.848)
+PCPNET_CUBE_BOUNDS = {0.0: 5.5, 0.006: 13.3}  # noise -> RMSE° bound
+
+# Claim bounds: docs/RESULTS.md's statements.
+#: Share of the distance from PCA to the Bayes floor that the learned method covers on noisy CAD ("ours: share" of
+#: the floor table: 68 % at 0.5 %, 20 % at 1 %, 50 % pooled over both); measured here 74 %, 36 % and 62 %.
+FLOOR_SHARE = {0.005: 0.68, 0.01: 0.20}
+FLOOR_SHARE_POOLED = 0.50
+#: LiDAR near edges RESULTS reports parity (0.963x, nothing claimed): the bound is "no worse than PCA", 1.0, which
+#: leaves the measured figure 0.037 of room (its 95 % interval ends near 0.98).
+NO_WORSE = 1.0
 
 
-def _heldout(noise: float):
+# --- scoring -------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Scores:
+    """Per-point squared angles (rad²) of each estimator at the same query points; the oracle's MSAE."""
+
+    learned: np.ndarray
+    pca: np.ndarray
+    oracle: float  # PCA at its best radius of eval's grid, chosen against the ground truth: an oracle
+    hybrid: np.ndarray | None = None
+    floor: np.ndarray | None = None
+
+    def ratio(self, method: str = "learned") -> float:
+        return float(getattr(self, method).mean() / self.pca.mean())
+
+    def interval(self, method: str = "learned") -> tuple[float, float]:
+        """95 % paired bootstrap interval of the MSAE ratio to PCA over the query points."""
+        return ratio_interval([(getattr(self, method), self.pca)])
+
+    def share(self) -> float:
+        """(PCA - learned) / (PCA - floor): 0 is PCA, 1 the floor."""
+        return float((self.pca.mean() - self.learned.mean()) / (self.pca.mean() - self.floor.mean()))
+
+
+@functools.cache
+def _scorer():
+    from triplet_normal_ros.evaluation.evaluate import CloudScorer
+
+    return CloudScorer(None, "cpu")
+
+
+def _score(
+    points: np.ndarray, truth: np.ndarray, query: np.ndarray, diagonal: float, with_hybrid: bool = False
+) -> Scores:
+    """eval's scoring (`CloudScorer.score`): learned and PCA at 5 % of `diagonal`, and the PCA oracle."""
+    _, _, best, angles = _scorer().score(points, truth, query, diagonal)
+    hybrid = None
+    if with_hybrid:
+        estimator = NormalEstimator("hybrid", radius=RADIUS_FRACTION * diagonal, device="cpu")
+        hybrid = angles_rad(estimator.estimate(points, query)[0], truth) ** 2
+    return Scores(angles[0] ** 2, angles[1] ** 2, best[0], hybrid)
+
+
+def _query(n: int) -> np.ndarray:
+    return np.random.default_rng(11).choice(n, QUERIES, replace=False)
+
+
+@functools.cache
+def _heldout(noise: float) -> Scores:
+    """The held-out CAD shape at `noise` × its diagonal, with the Bayes floor of its noisy points."""
+    from triplet_normal_ros.evaluation.floor import floor_angles, validation_surface
+
     cloud = heldout_cad_cloud(n_points=100_000, noise=noise, seed=123)
-    radius = 0.05 * bbox_diagonal(cloud.points)
-    query = np.random.default_rng(11).choice(len(cloud.points), QUERIES, replace=False)
-    return cloud, radius, query
+    query = _query(len(cloud.points))
+    truth = cloud.normals[query]
+    points = np.asarray(cloud.points, dtype=np.float64)
+    scores = _score(points, truth, query, bbox_diagonal(points), with_hybrid=True)
+    surface, diagonal = validation_surface(HELDOUT_SHAPE, 100_000, 123)
+    floor, _ = floor_angles(surface, cloud.points[query], cloud.noise * diagonal, truth)
+    print(
+        f"held-out {HELDOUT_SHAPE} at {noise:.1%}: MSAE learned {scores.learned.mean():.4f}, hybrid "
+        f"{scores.hybrid.mean():.4f}, PCA {scores.pca.mean():.4f}, oracle PCA {scores.oracle:.4f}, floor "
+        f"{floor.mean():.4f}"
+    )
+    return Scores(scores.learned, scores.pca, scores.oracle, scores.hybrid, floor)
 
 
-def _pca_k(radius: float) -> int:
-    """PCA sees the whole pool the network draws its k points from."""
-    return POOL_FACTOR * NormalEstimator("learned", radius=radius, device="cpu").k
+@functools.cache
+def _smooth(noise: float) -> Scores:
+    (cloud,) = build_dataset("val", shapes=[SMOOTH_SHAPE], noise_levels=[noise], progress=False)
+    query = _query(len(cloud.points))
+    points = np.asarray(cloud.points, dtype=np.float64)
+    scores = _score(points, cloud.normals[query], query, bbox_diagonal(points))
+    print(f"{SMOOTH_SHAPE} at {noise:.2%}: MSAE learned {scores.learned.mean():.6f} vs PCA {scores.pca.mean():.6f}")
+    return scores
 
 
-def _msae(method: str, cloud, radius: float, query: np.ndarray, k: int | None = None) -> float:
-    est = NormalEstimator(method, radius=radius, k=k, device="cpu")
-    normals, _ = est.estimate(cloud.points, query)
-    return msae(normals, cloud.normals[query])
+def _rmse_deg(squared: np.ndarray) -> float:
+    return float(np.degrees(np.sqrt(squared.mean())))
+
+
+# --- held-out CAD --------------------------------------------------------------------------------------------------
 
 
 def test_heldout_shape_is_not_in_the_training_catalogue():
@@ -62,87 +151,183 @@ def test_heldout_shape_is_not_in_the_training_catalogue():
     assert read_metadata(default_checkpoint_path())["training"]["recipe"]["shapes"] is None  # all training shapes
 
 
-@pytest.mark.parametrize(("noise", "bound"), [(0.0, 0.23), (0.005, 0.70), (0.01, 0.99)])
-def test_shipped_checkpoint_beats_pca_on_heldout_cad(noise: float, bound: float):
-    cloud, radius, query = _heldout(noise)
-    learned = _msae("learned", cloud, radius, query)
-    pca = _msae("pca", cloud, radius, query, k=_pca_k(radius))
-    print(f"held-out {HELDOUT_SHAPE} at {noise:.1%} noise: MSAE learned {learned:.4f} vs PCA {pca:.4f}")
-    assert learned < bound * pca
+@pytest.mark.parametrize("noise", sorted(HELDOUT_BOUNDS))
+def test_shipped_checkpoint_beats_pca_on_heldout_cad(noise: float):
+    """RESULTS: sharp features with little or moderate noise are where it helps (0.20x, 0.67x, 0.95x held out)."""
+    s = _heldout(noise)
+    assert s.ratio() < HELDOUT_BOUNDS[noise]
+    assert s.interval()[1] < 1.0, f"not better than PCA beyond sampling error: {s.interval()}"
 
 
-def test_shipped_checkpoint_matches_pca_on_a_noisy_smooth_validation_shape():
-    (cloud,) = build_dataset("val", shapes=[SMOOTH_SHAPE], noise_levels=[0.01], progress=False)
-    radius = 0.05 * bbox_diagonal(cloud.points)
-    query = np.random.default_rng(11).choice(len(cloud.points), QUERIES, replace=False)
-    learned = _msae("learned", cloud, radius, query)
-    pca = _msae("pca", cloud, radius, query, k=_pca_k(radius))
-    print(f"{SMOOTH_SHAPE} at 1% noise: MSAE learned {learned:.5f} vs PCA {pca:.5f}")
-    assert learned < 1.04 * pca
+@pytest.mark.parametrize("noise", sorted(HELDOUT_BOUNDS))
+def test_the_hybrid_default_beats_pca_on_heldout_cad_as_the_learned_method_does(noise: float):
+    """The node's default sends edges through the network, so it keeps the learned method's gain over PCA there."""
+    s = _heldout(noise)
+    assert s.interval("hybrid")[1] < 1.0, f"hybrid not better than PCA beyond sampling error: {s.interval('hybrid')}"
+    assert s.ratio("hybrid") < HELDOUT_BOUNDS[noise]
 
 
-# --- every regime of issue #12: each bound is the shipped checkpoint's measured ratio plus a margin for numeric drift
+@pytest.mark.parametrize("noise", [0.0, 0.005])
+def test_shipped_checkpoint_beats_the_best_radius_pca_oracle_on_heldout_cad(noise: float):
+    """RESULTS: over the CAD clouds it beats PCA at its best radius chosen against the ground truth (per cloud for
+    this shape, clean and at 0.5 %; at 1 % the two are level, so that level is not claimed)."""
+    s = _heldout(noise)
+    assert s.learned.mean() < s.oracle
 
 
-def _smooth(noise: float):
-    (cloud,) = build_dataset("val", shapes=[SMOOTH_SHAPE], noise_levels=[noise], progress=False)
-    radius = 0.05 * bbox_diagonal(cloud.points)
-    return cloud, radius, np.random.default_rng(11).choice(len(cloud.points), QUERIES, replace=False)
+@pytest.mark.parametrize("noise", sorted(FLOOR_SHARE))
+def test_shipped_checkpoint_stays_above_the_bayes_floor_and_closes_its_share_of_the_gap(noise: float):
+    """No estimator can beat the floor (the least MSAE even knowing the clean surface); a score below it means the
+    scoring leaks the truth. Between PCA and the floor the checkpoint covers at least the share RESULTS claims."""
+    s = _heldout(noise)
+    assert s.floor.mean() < s.learned.mean() and s.floor.mean() < s.hybrid.mean()
+    assert s.floor.mean() < s.pca.mean()
+    assert s.share() >= FLOOR_SHARE[noise], f"{s.share():.0%} of the way from PCA to the floor"
 
 
-def test_shipped_checkpoint_keeps_a_clean_smooth_shape_within_a_tenth_of_a_degree_of_pca():
-    cloud, radius, query = _smooth(0.0)
-    learned = np.degrees(np.sqrt(_msae("learned", cloud, radius, query)))
-    pca = np.degrees(np.sqrt(_msae("pca", cloud, radius, query, k=_pca_k(radius))))
+def test_shipped_checkpoint_closes_half_the_gap_to_the_floor_on_noisy_cad_pooled():
+    """RESULTS: at 0.5 and 1 % pooled, 50 % of the way from PCA to the Bayes floor."""
+    levels = [_heldout(noise) for noise in sorted(FLOOR_SHARE)]
+    pca, learned, floor = (sum(getattr(s, name).mean() for s in levels) for name in ("pca", "learned", "floor"))
+    assert (pca - learned) / (pca - floor) >= FLOOR_SHARE_POOLED
+
+
+# --- smooth shapes -------------------------------------------------------------------------------------------------
+
+
+def test_shipped_checkpoint_stays_within_4_percent_of_pca_on_a_noisy_smooth_validation_shape():
+    """RESULTS: on smooth shapes at 1 % the checkpoint is 1.03x PCA (parity is a target it does not meet)."""
+    assert _smooth(0.01).ratio() < SMOOTH_NOISY_BOUND
+
+
+def test_shipped_checkpoint_beats_pca_on_a_clean_smooth_shape_by_rmse():
+    """RESULTS: clean smooth shapes within 0.1° of PCA's RMSE, in fact better (0.47° against 0.59° over the set)."""
+    s = _smooth(0.0)
+    learned, pca = _rmse_deg(s.learned), _rmse_deg(s.pca)
     print(f"{SMOOTH_SHAPE} clean: RMSE learned {learned:.3f}° vs PCA {pca:.3f}°")
-    assert learned < pca + CLEAN_SMOOTH_RMSE_MARGIN_DEG
+    assert learned < pca + CLEAN_SMOOTH_RMSE_MARGIN_DEG  # the target
+    assert learned < pca  # and RESULTS' claim, which is stronger
     assert learned < CLEAN_SMOOTH_RMSE_BOUND_DEG
 
 
 def test_shipped_checkpoint_stays_near_pca_on_a_lightly_noisy_smooth_shape():
-    cloud, radius, query = _smooth(0.0025)
-    learned = _msae("learned", cloud, radius, query)
-    pca = _msae("pca", cloud, radius, query, k=_pca_k(radius))
-    print(f"{SMOOTH_SHAPE} at 0.25% noise: MSAE learned {learned:.6f} vs PCA {pca:.6f}")
-    assert learned < LIGHT_SMOOTH_BOUND * pca
+    assert _smooth(0.0025).ratio() < LIGHT_SMOOTH_BOUND
 
 
-def _range_ratio(kind: str) -> tuple[float, float]:
-    """Learned / PCA over the pool on eval's frames of `kind` (`range_eval.evaluate_set`, the numbers of the eval
-    blocks in docs/RESULTS.md), overall and near edges."""
+# --- eval's simulated range frames ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RangeScores:
+    """Pooled squared angles over eval's frames of one kind, and which query pixels are near an edge."""
+
+    pca: np.ndarray
+    learned: np.ndarray
+    hybrid: np.ndarray
+    edge: np.ndarray
+
+    def ratio(self, method: str, edge_only: bool = False) -> float:
+        rows = self.edge if edge_only else slice(None)
+        return float(getattr(self, method)[rows].mean() / self.pca[rows].mean())
+
+    def interval(self, method: str, edge_only: bool = False) -> tuple[float, float]:
+        rows = self.edge if edge_only else slice(None)
+        return ratio_interval([(getattr(self, method)[rows], self.pca[rows])])
+
+
+@functools.cache
+def _range(kind: str) -> RangeScores:
+    """Learned, hybrid and PCA over the pool on eval's frames of `kind` (`range_eval.evaluate_set`: the numbers of
+    the eval blocks in docs/RESULTS.md)."""
     from triplet_normal_ros.evaluation.range_eval import SETS, evaluate_set
 
     radius = SETS[kind].radius
+    learned = NormalEstimator("learned", radius=radius, device="cpu")
     estimators = {
-        method: NormalEstimator(method, radius=radius, k=k, device="cpu")
-        for method, k in (("learned", None), ("pca", _pca_k(radius)))
+        # The learned pool, the nearest 4k in the ball (not a window over the whole ball, which 'auto' would take).
+        "pca": NormalEstimator("pca", radius=radius, k=POOL_FACTOR * learned.k, device="cpu", neighbours="kdtree"),
+        "learned": learned,
+        "hybrid": NormalEstimator("hybrid", radius=radius, device="cpu"),
     }
-    learned, pca = evaluate_set(kind, estimators, quick=False)[0]
-    return learned.msae() / pca.msae(), learned.msae(edge_only=True) / pca.msae(edge_only=True)
+    scores, _ = evaluate_set(kind, estimators, quick=False)
+    pooled = [np.concatenate(s.squared) for s in scores]
+    result = RangeScores(*pooled, np.concatenate(scores[0].near_edge))
+    print(
+        f"{kind}: learned / PCA {result.ratio('learned'):.3f} overall, {result.ratio('learned', True):.3f} near edges;"
+        f" hybrid {result.ratio('hybrid'):.3f} and {result.ratio('hybrid', True):.3f}"
+    )
+    return result
 
 
 def test_shipped_checkpoint_beats_pca_on_simulated_depth_frames_most_of_all_near_edges():
-    overall, near_edges = _range_ratio("depth")
-    print(f"depth frames: learned / PCA {overall:.3f} overall, {near_edges:.3f} near edges")
-    assert overall < DEPTH_BOUNDS[0] and near_edges < DEPTH_BOUNDS[1]
+    s = _range("depth")
+    assert s.ratio("learned") < DEPTH_BOUNDS[0] and s.ratio("learned", True) < DEPTH_BOUNDS[1]
+    overall, near_edges = s.interval("learned"), s.interval("learned", edge_only=True)
+    assert overall[1] < 1.0 and near_edges[1] < 1.0, (overall, near_edges)
+    assert near_edges[1] < overall[0], f"learned: the gain near edges is not the larger: {near_edges} {overall}"
 
 
-def test_shipped_checkpoint_holds_its_level_on_simulated_lidar_scans():
-    overall, near_edges = _range_ratio("lidar")
-    print(f"LiDAR scans: learned / PCA {overall:.3f} overall, {near_edges:.3f} near edges")
-    assert overall < LIDAR_BOUNDS[0] and near_edges < LIDAR_BOUNDS[1]
+def test_hybrid_on_depth_frames_beats_pca_everywhere_and_learned_overall():
+    """RESULTS: hybrid's window survey (the plane fit that allows for range noise along the rays) answers the far,
+    noisy surfaces better than any pool PCA, and the network the folds: 0.395 x PCA overall, 0.689 x near edges, and
+    about half of learned's error overall; both gains beyond sampling error."""
+    s = _range("depth")
+    assert s.ratio("hybrid") < HYBRID_DEPTH_BOUNDS[0] and s.ratio("hybrid", True) < HYBRID_DEPTH_BOUNDS[1]
+    overall, near_edges = s.interval("hybrid"), s.interval("hybrid", edge_only=True)
+    assert overall[1] < 1.0 and near_edges[1] < 1.0, (overall, near_edges)
+    assert s.ratio("hybrid") < s.ratio("learned")
 
 
-@pytest.mark.parametrize(("noise", "bound_deg"), PCPNET_CUBE_BOUNDS)
-def test_shipped_checkpoint_holds_its_pcpnet_cube_rmse(noise: float, bound_deg: float):
+def test_shipped_checkpoint_beats_pca_on_simulated_lidar_scans_overall():
+    """RESULTS: learned 0.956x PCA overall; hybrid 0.848x, within the 0.85x target for LiDAR."""
+    s = _range("lidar")
+    assert s.ratio("learned") < LIDAR_BOUND
+    assert s.interval("learned")[1] < 1.0, f"not better than PCA beyond sampling error: {s.interval('learned')}"
+    assert s.ratio("hybrid") < HYBRID_LIDAR_BOUND
+    assert s.interval("hybrid")[1] < 1.0, f"not better than PCA beyond sampling error: {s.interval('hybrid')}"
+
+
+def test_shipped_checkpoint_and_hybrid_are_no_worse_than_pca_near_lidar_edges():
+    """RESULTS claims no gain near LiDAR edges (learned 0.963x, where a 0.25 m ball holds one or two nearly collinear
+    rings; hybrid 0.93x): each must be no worse than PCA, a bound of 1.0 (see NO_WORSE)."""
+    s = _range("lidar")
+    assert s.ratio("learned", edge_only=True) <= NO_WORSE
+    assert s.ratio("hybrid", edge_only=True) <= NO_WORSE
+
+
+# --- PCPNet (test data that cannot ship with the repository) ---------------------------------------------------------
+
+
+@functools.cache
+def _pcpnet_cube(noise: float) -> Scores:
     from triplet_normal_ros.evaluation.evaluate import pcpnet_noisy, pcpnet_shapes
 
-    name, points, normals = next(s for s in pcpnet_shapes(PCPNET_DIR, quick=True) if s[0] == "cube100k")
-    diagonal = bbox_diagonal(points)
+    _, points, normals = next(s for s in pcpnet_shapes(PCPNET_DIR, quick=True) if s[0] == "cube100k")
+    diagonal = bbox_diagonal(points)  # of the clean shape, as eval scales radius and noise
     noisy = pcpnet_noisy(points, noise, diagonal) if noise else points
-    query = np.random.default_rng(11).choice(len(points), QUERIES, replace=False)
-    est = NormalEstimator("learned", radius=0.05 * diagonal, device="cpu")
-    predicted, _ = est.estimate(noisy, query)
-    rmse = np.degrees(np.sqrt(msae(predicted, normals[query])))
-    print(f"PCPNet {name} at {noise:.2%} noise: RMSE learned {rmse:.2f}°")
-    assert rmse < bound_deg
+    query = _query(len(points))
+    scores = _score(noisy, normals[query], query, diagonal)
+    learned, pca = _rmse_deg(scores.learned), _rmse_deg(scores.pca)
+    print(f"PCPNet cube100k at {noise:.2%}: RMSE learned {learned:.2f}°, PCA {pca:.2f}°")
+    return scores
+
+
+@pytest.fixture
+def pcpnet_cube():
+    """Skips when the PCPNet cube is not beside the checkout (it cannot ship with the repository)."""
+    if not all((PCPNET_DIR / f"cube100k{ext}").is_file() for ext in (".xyz", ".normals")):
+        pytest.skip(f"no PCPNet data: get cube100k.xyz and cube100k.normals from {PCPNET_URL} into {PCPNET_DIR}")
+    return _pcpnet_cube
+
+
+@pytest.mark.parametrize("noise", sorted(PCPNET_CUBE_BOUNDS))
+def test_shipped_checkpoint_holds_its_pcpnet_cube_rmse(pcpnet_cube, noise: float):
+    assert _rmse_deg(pcpnet_cube(noise).learned) < PCPNET_CUBE_BOUNDS[noise]
+
+
+@pytest.mark.parametrize("noise", sorted(PCPNET_CUBE_BOUNDS))
+def test_shipped_checkpoint_beats_pca_and_the_pca_oracle_on_the_pcpnet_cube(pcpnet_cube, noise: float):
+    """RESULTS: below PCA at 5 % and below the best-radius PCA oracle on the cube at every noise level."""
+    s = pcpnet_cube(noise)
+    assert s.interval()[1] < 1.0, f"not better than PCA beyond sampling error: {s.interval()}"
+    assert s.learned.mean() < s.oracle

@@ -8,7 +8,8 @@ from scipy.stats import norm
 
 from triplet_normal_ros.evaluation import floor as fl
 from triplet_normal_ros.evaluation.evaluate import CloudScores, floor_markdown
-from triplet_normal_ros.training.dataset import CACHE_ENV, build_dataset
+from triplet_normal_ros.simulation.cache import CACHE_ENV
+from triplet_normal_ros.training.dataset import build_dataset
 
 HALF = 20.0  # half-size of the test cube, in units of sigma = 1: every other face is 20 sigma away
 
@@ -195,10 +196,10 @@ def test_floor_table_reports_ratios_and_shares() -> None:
 def test_floor_is_below_every_method_on_the_quick_eval_set(tmp_path, monkeypatch) -> None:
     """A weak but honest inequality: no method, not even the PCA radius chosen against the ground truth, beats the
     Bayes floor at the same query points (the floor is the least expected loss; 200 queries leave a wide margin)."""
-    from triplet_normal_ros.evaluation.evaluate import Contenders, evaluate_validation
+    from triplet_normal_ros.evaluation.evaluate import CloudScorer, evaluate_validation
 
     monkeypatch.setenv(CACHE_ENV, str(tmp_path))
-    cad = [r for r in evaluate_validation(Contenders(None, "cpu"), 200, quick=True) if r.kind == "cad"]
+    cad = [r for r in evaluate_validation(CloudScorer(None, "cpu"), 200, quick=True) if r.kind == "cad"]
     assert {r.noise for r in cad} == {0.0, 0.01}
     for r in cad:
         assert r.floor is not None and r.floor[0] <= min(r.ours[0], r.pca[0], r.best[0])

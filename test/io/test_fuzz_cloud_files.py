@@ -18,6 +18,7 @@ from pathlib import Path
 import lzf
 import numpy as np
 import pytest
+from helpers import ALLOCATION_BOUND, peak_allocation
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pypcd4 import Encoding, PointCloud
@@ -397,15 +398,25 @@ def huge_npy(draw: st.DrawFn) -> bytes:
     return buffer.getvalue() + draw(st.binary())
 
 
+#: The most a read of these few-kilobyte files may allocate at once. Every HUGE count claims at least 10^6 points,
+#: 12 MB even as float32 xyz, so a reader that sizes an array from the header before checking the file holds that
+#: much data goes far past it.
+def test_the_allocation_bound_catches_an_array_sized_from_a_huge_count() -> None:
+    _, peak = peak_allocation(lambda: np.empty((10**6, 3), np.float32))  # the least a HUGE count claims
+    assert peak > 10 * ALLOCATION_BOUND
+
+
 @pytest.mark.parametrize(("suffix", "files"), [(".pcd", huge_pcd()), (".ply", huge_ply()), (".npy", huge_npy())])
 def test_huge_declared_counts_are_refused_without_allocating(folder: Path, suffix: str, files) -> None:
-    """No MemoryError, OverflowError or a multi-gigabyte allocation from a number in a header."""
+    """No MemoryError, OverflowError or a multi-gigabyte allocation from a number in a header: the refusal comes
+    before any array the header sizes, so the read's peak allocation stays far below what the header claims."""
 
     @FUZZ
     @given(files)
     def check(data: bytes) -> None:
-        got = _read(folder, suffix, data)
+        got, peak = peak_allocation(lambda: _read(folder, suffix, data))
         assert isinstance(got, CloudFileError), got
+        assert peak < ALLOCATION_BOUND, f"{peak} bytes allocated while reading a {len(data)}-byte file"
 
     check()
 

@@ -9,10 +9,13 @@ spec (``expected_error``, ``field_bits``, ``expected_xyz``); any other exception
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 from fuzz_clouds import (
     UINT32_MAX,
+    DrawChoices,
     SeededChoices,
     clouds,
     expected_error,
@@ -21,7 +24,9 @@ from fuzz_clouds import (
     fuzzed_cloud,
     node_refusal,
 )
+from helpers import ALLOCATION_BOUND, peak_allocation
 from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import PointCloud2, PointField
 
@@ -89,6 +94,59 @@ def test_read_field_gives_each_fields_bits(msg: PointCloud2) -> None:
         assert got.shape == ((n, f.count) if f.count > 1 else (n,))
         bits = np.ascontiguousarray(got).view(f"u{SIZES[f.datatype]}").reshape(n, f.count)
         assert [tuple(int(b) for b in row) for row in bits] == field_bits(msg, f), name
+
+
+#: The most reading or answering a cloud of a few kilobytes may allocate at once; the clouds below claim at least
+#: 2^24 points, so an array sized from height x width before the data is checked (16 MiB even for one byte a point)
+#: goes far past it.
+@st.composite
+def clouds_claiming_a_huge_size(draw: st.DrawFn) -> PointCloud2:
+    """A fuzzed cloud (a few kilobytes of data at most) whose height or width then claims at least 2^24 points, its
+    row_step sometimes consistent with them so that only the data length gives the lie away."""
+    msg = fuzzed_cloud(DrawChoices(draw))
+    huge, other = draw(st.sampled_from((2**24, 2**31, UINT32_MAX))), draw(st.integers(1, 4))
+    msg.height, msg.width = (huge, other) if draw(st.booleans()) else (other, huge)
+    if draw(st.booleans()):
+        msg.row_step = min(msg.width * msg.point_step, UINT32_MAX)
+    return msg
+
+
+def _peak_allocation(call: Callable[[], object]) -> tuple[object, int]:
+    """`peak_allocation` of ``call``, whose CloudFormatError counts as what it returns."""
+
+    def outcome() -> object:
+        try:
+            return call()
+        except CloudFormatError as error:
+            return error
+
+    return peak_allocation(outcome)
+
+
+def test_the_allocation_bound_catches_an_array_sized_from_the_claimed_points() -> None:
+    _, peak = _peak_allocation(lambda: np.empty(2**24, np.uint8))  # the least the clouds below claim
+    assert peak > 10 * ALLOCATION_BOUND
+
+
+@FUZZ
+@given(clouds_claiming_a_huge_size())
+def test_a_cloud_claiming_a_huge_size_is_refused_without_allocating_it(msg: PointCloud2) -> None:
+    """Every reader the node uses checks the layout against the data before it sizes anything from height x width:
+    the documented refusal, and a peak allocation far below what the claimed points would need."""
+    assert msg.height * msg.width >= 2**24 and len(msg.data) <= 4096 + 7
+    names = dict.fromkeys(f.name for f in msg.fields)
+    calls = {"read_xyz": (lambda: read_xyz(msg), expected_error(msg))}
+    calls["with_normals"] = (lambda: with_normals(msg, np.zeros((0, 3)), np.zeros(0)), node_refusal(msg))
+    for name in names:
+        calls[f"read_field {name!r}"] = (
+            lambda name=name: read_field(msg, name),
+            expected_error(msg, need_xyz=False, name=name),
+        )
+    for what, (call, reason) in calls.items():
+        got, peak = _peak_allocation(call)
+        assert reason is not None and isinstance(got, CloudFormatError), (what, got)
+        assert reason in str(got), (what, reason, got)
+        assert peak < ALLOCATION_BOUND, f"{what}: {peak} bytes allocated for a {len(msg.data)}-byte cloud"
 
 
 def _normals(n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,9 +1,12 @@
-"""What the cross-process tests need beyond the demo's :class:`ReplayClient`: fire-and-forget sends and crops.
+"""What the cross-process tests need beyond the demo's :class:`ReplayClient`: fire-and-forget sends, waits on a
+condition while serving callbacks, a count of the answers, and crops.
 
 Kept under test/ so the runtime package ships only what ``make demo`` uses.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 from sensor_msgs.msg import PointCloud2
 
@@ -11,7 +14,14 @@ from triplet_normal_ros.ros.replay import Frame, ReplayClient
 
 
 class ProbeClient(ReplayClient):
-    """A :class:`ReplayClient` that can also publish without waiting and keep serving callbacks."""
+    """A :class:`ReplayClient` that can also publish without waiting, keep serving callbacks and count answers."""
+
+    #: Every answer received on the output topic, requested or not.
+    answers_received = 0
+
+    def _on_output(self, msg: PointCloud2) -> None:
+        self.answers_received += 1
+        super()._on_output(msg)
 
     def send(self, cloud: PointCloud2) -> None:
         """Publish without waiting (for clouds the node is expected to reject)."""
@@ -20,6 +30,10 @@ class ProbeClient(ReplayClient):
     def spin_for(self, seconds: float) -> None:
         """Keep serving callbacks for ``seconds`` (lets DDS deliver what was sent)."""
         self._spin_until(lambda: False, seconds)
+
+    def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
+        """Serve callbacks until ``done()`` is true (returns True) or ``timeout`` s have passed (returns done())."""
+        return self._spin_until(done, timeout)
 
 
 def cropped(frame: Frame, top: int, left: int, height: int, width: int) -> Frame:

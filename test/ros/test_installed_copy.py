@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from conftest import PACKAGE, REPO, site_packages
 
-from triplet_normal_ros.ros import demo
+from triplet_normal_ros.ros.node_process import node_env
 
 
 @pytest.mark.slow  # colcon build and a node process
@@ -43,5 +43,5 @@ def test_a_module_missing_from_an_install_is_not_taken_from_the_checkout(tmp_pat
 
 
 def test_the_demo_gives_the_node_the_install_first(tmp_path: Path) -> None:
-    env = demo._node_env(tmp_path)
+    env = node_env(tmp_path)
     assert env["PYTHONPATH"].split(os.pathsep)[0] == str(site_packages(tmp_path))

@@ -11,7 +11,8 @@ import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
-from triplet_normal_ros.core.checkpoint import default_checkpoint_path, read_metadata
+from triplet_normal_ros.core import defaults
+from triplet_normal_ros.core.checkpoint import read_metadata, shipped_checkpoint_path
 from triplet_normal_ros.core.conventions import PCA_DEFAULT_K
 from triplet_normal_ros.ros.node import StartupError, TripletNormalNode
 from triplet_normal_ros.ros.params import (
@@ -127,10 +128,13 @@ def test_only_method_checkpoint_and_device_need_a_reload() -> None:
     assert not needs_reload({"radius": 0.1, "k": 10, "orient": False, "viewpoint": [0, 0, 1], "batch_size": 8})
 
 
-def test_estimator_args_map_the_empty_defaults_to_none() -> None:
+def test_estimator_args_map_the_empty_defaults_to_the_methods_and_the_devices() -> None:
     args = NodeSettings(method="pca").estimator_args()
-    assert args["k"] is None and args["checkpoint"] is None and args["method"] == "pca"
+    assert args["k"] is None and args["method"] == "pca"
     assert NodeSettings(k=64, checkpoint="/x").estimator_args()["k"] == 64
+    assert NodeSettings(device="cpu").estimator_args()["checkpoint"] == "lite"
+    assert NodeSettings(device="cuda").estimator_args()["checkpoint"] == "default"
+    assert NodeSettings(device="cpu", checkpoint="default").estimator_args()["checkpoint"] == "default"
 
 
 # -- the node itself, in process ------------------------------------------------------------------------------------
@@ -195,7 +199,7 @@ def test_k_zero_means_pca_default_k_for_pca(node: TripletNormalNode) -> None:
 
 
 def test_k_zero_means_the_checkpoints_k_for_learned_and_follows_a_method_change(context: Context) -> None:
-    checkpoint_k = read_metadata(default_checkpoint_path())["k"]
+    checkpoint_k = read_metadata(shipped_checkpoint_path(defaults.shipped_checkpoint("cpu")))["k"]
     assert checkpoint_k != PCA_DEFAULT_K  # otherwise this test could not tell the two defaults apart
     n = make_node(context, method="learned", device="cpu")
     try:
@@ -270,3 +274,17 @@ def test_a_device_change_builds_a_new_estimator(node: TripletNormalNode) -> None
 def test_bad_startup_parameters_raise_one_startup_error(context: Context, overrides: dict, message: str) -> None:
     with pytest.raises(StartupError, match=message):
         make_node(context, **overrides)
+
+
+def test_shipped_params_file_states_every_default() -> None:
+    """config/params.yaml is what users copy and edit: it must name every parameter with the node's own default."""
+    import yaml
+    from conftest import REPO
+
+    document = yaml.safe_load((REPO / "config" / "params.yaml").read_text())
+    shipped = document["/**"]["ros__parameters"]
+    assert set(shipped) == {spec.name for spec in SPECS}
+    for spec in SPECS:
+        value = shipped[spec.name]
+        assert type(value) is spec.kind, f"{spec.name}: {value!r} must be a {spec.kind.__name__} for rclpy"
+        assert value == spec.default, f"{spec.name}: the file says {value!r}, the node's default is {spec.default!r}"

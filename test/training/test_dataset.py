@@ -8,6 +8,7 @@ import trimesh
 from helpers import heldout_cad_cloud
 from scipy import stats
 
+from triplet_normal_ros.simulation.cache import CACHE_ENV, default_cache_dir
 from triplet_normal_ros.training import dataset as td
 from triplet_normal_ros.training.shapes import TRAIN_SHAPES, VAL_SHAPES, catalogue
 
@@ -170,12 +171,12 @@ def test_corrupt_cache_entry_is_regenerated(tmp_path) -> None:
 
 
 def test_cache_dir_from_environment(tmp_path, monkeypatch) -> None:
-    monkeypatch.setenv(td.CACHE_ENV, str(tmp_path / "env"))
-    assert td.default_cache_dir() == tmp_path / "env"
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "env"))
+    assert default_cache_dir() == tmp_path / "env"
     td.build_dataset("val", 500, shapes=["torus_thin"], noise_levels=(0.01,), progress=False)
     assert len(list((tmp_path / "env").glob("torus_thin-*.npz"))) == 1
-    monkeypatch.delenv(td.CACHE_ENV)
-    assert td.default_cache_dir().parts[-3:] == (".cache", "triplet_normal_ros", "data")
+    monkeypatch.delenv(CACHE_ENV)
+    assert default_cache_dir().parts[-3:] == (".cache", "triplet_normal_ros", "data")
 
 
 def test_bad_split_or_shape_is_one_clear_error(tmp_path) -> None:

@@ -4,6 +4,8 @@ paper's constraints on generated data."""
 import argparse
 import json
 import math
+from functools import partial
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +13,7 @@ import torch
 
 from triplet_normal_ros.cli import train
 from triplet_normal_ros.cli.main import main
-from triplet_normal_ros.core.checkpoint import default_checkpoint_path, read_metadata
+from triplet_normal_ros.core.checkpoint import default_checkpoint_path, load_checkpoint, read_metadata
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.neighbours import NeighbourIndex
 from triplet_normal_ros.errors import TrainingError, UsageError
@@ -19,6 +21,7 @@ from triplet_normal_ros.evaluation.ablation import _variants, reference_estimato
 from triplet_normal_ros.training.batches import PatchSampler
 from triplet_normal_ros.training.dataset import build_dataset
 from triplet_normal_ros.training.recipes import RECIPES
+from triplet_normal_ros.training.trainer import TrainingRun, _mean_loss, _recipe_loss, _samplers, _val_patches
 from triplet_normal_ros.training.triplets import mine_triplets
 
 pytestmark = pytest.mark.slow  # training runs: `make test-fast` deselects this module
@@ -36,12 +39,28 @@ def _args(extra: str, run_dir) -> argparse.Namespace:
     return parser.parse_args(f"{TOY} {extra} --run-dir {run_dir}".split())
 
 
+TOY_RUN = "--encoder-epochs 1 --regressor-epochs 6 --finetune-epochs 2 --finetune-patches-per-shape 64 --lr 0.05"
+
+
 @pytest.fixture(scope="module")
 def toy_run(tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("train")
-    extra = "--encoder-epochs 1 --regressor-epochs 6 --finetune-epochs 2 --finetune-patches-per-shape 64 --lr 0.05"
-    assert train.run(_args(extra, run_dir)) == 0
+    assert train.run(_args(TOY_RUN, run_dir)) == 0
     return run_dir
+
+
+def _shipped_val_loss(run_dir: Path, extra: str) -> float:
+    """The validation normal loss of the checkpoint a run wrote, on the validation patches phases (b) and (c) use."""
+    recipe = train.recipe_from_args(_args(extra, run_dir))
+    model, _ = load_checkpoint(run_dir / "model.safetensors")
+    run = TrainingRun(model, recipe, [], _samplers(recipe, "val"), torch.device("cpu"), run_dir)
+    val = _val_patches(run)
+    return _mean_loss(model, len(val.patches), 512, partial(_recipe_loss, model, val, recipe, run.device))
+
+
+def _weights(path: Path) -> dict[str, torch.Tensor]:
+    model, _ = load_checkpoint(path)
+    return model.state_dict()
 
 
 def test_regressor_loss_falls(toy_run):
@@ -54,9 +73,11 @@ def test_regressor_loss_falls(toy_run):
 def test_finetune_phase_runs_end_to_end(toy_run):
     history = json.loads((toy_run / "history.json").read_text())["history"]
     assert [h["phase"] for h in history] == ["encoder"] + ["regressor"] * 6 + ["finetune"] * 2
-    best_b = min(h["val"] for h in history if h["phase"] == "regressor")
+    # The checkpoint holds the weights of the least validation loss over (b) and (c), measured again from the file.
+    best = min(h["val"] for h in history if h["phase"] != "encoder")
+    assert _shipped_val_loss(toy_run, TOY_RUN) == pytest.approx(best, rel=1e-4)
     summary = json.loads((toy_run / "history.json").read_text())
-    assert summary["final_val_normal_loss"] <= best_b  # the shipped weights are the best of (b) and (c)
+    assert summary["final_val_normal_loss"] == pytest.approx(best, rel=1e-4)
     clouds = 2 * 6  # two shapes, clean + five noise levels
     assert {h["n"] for h in history if h["phase"] == "finetune"} == {clouds * 64}  # phase (c)'s own count
     assert {h["n"] for h in history if h["phase"] == "regressor"} == {clouds * 256}
@@ -82,6 +103,40 @@ def test_resume_continues_where_it_stopped(tmp_path):
     resumed = json.loads((run_dir / "history.json").read_text())["history"]
     assert [h["epoch"] for h in resumed if h["phase"] == "regressor"] == [0, 1, 2]
     assert resumed[: len(first)] == first  # earlier epochs are kept, not re-run
+
+
+def _interrupted_after_worse_epochs(run_dir: Path) -> None:
+    """Make state.pt that of a run whose last epoch before the interruption was worse than its best and whose later
+    epochs cannot improve: the last layer of the saved weights answers the patch frame's x axis, a tangent, for every
+    patch, and the saved learning rate is 0, so resumed epochs keep answering it."""
+    state = torch.load(run_dir / "state.pt", weights_only=True)  # what state.pt holds loads without unpickling
+    last = max((k for k in state["model"] if k.startswith("regressor.mlp.")), key=lambda k: int(k.split(".")[2]))
+    layer = last.rsplit(".", 1)[0]
+    state["model"][f"{layer}.weight"] = torch.zeros_like(state["model"][f"{layer}.weight"])
+    state["model"][f"{layer}.bias"] = torch.tensor([1.0, 0.0, 0.0])
+    for group in state["optimizer"]["param_groups"]:
+        group["lr"] = 0.0
+    torch.save(state, run_dir / "state.pt")
+
+
+@pytest.mark.parametrize("more", [0, 2])  # resumed with no epoch of phase (b) left, or with two more
+def test_a_resumed_run_ships_its_best_weights_from_before_the_interruption(tmp_path, more):
+    run_dir = tmp_path / "best"
+    train.run(_args("--encoder-epochs 1 --regressor-epochs 2", run_dir))
+    before = json.loads((run_dir / "history.json").read_text())
+    shipped_before = _weights(run_dir / "model.safetensors")
+    _interrupted_after_worse_epochs(run_dir)
+    train.run(_args(f"--encoder-epochs 1 --regressor-epochs {2 + more} --resume", run_dir))
+    after = json.loads((run_dir / "history.json").read_text())
+    later = [h["val"] for h in after["history"] if h["phase"] == "regressor" and h["epoch"] >= 2]
+    assert len(later) == more and all(val > before["final_val_normal_loss"] for val in later)  # worse, as arranged
+    shipped_after = _weights(run_dir / "model.safetensors")
+    assert shipped_after.keys() == shipped_before.keys()
+    assert all(torch.equal(shipped_after[k], shipped_before[k]) for k in shipped_before), "not the earlier best"
+    assert after["final_val_normal_loss"] == before["final_val_normal_loss"]
+    assert after["best_epoch"] == before["best_epoch"] and after["best_epoch"]["phase"] == "regressor"
+    state = torch.load(run_dir / "state.pt", weights_only=True)
+    assert (state["best"]["phase"], state["best"]["epoch"]) == tuple(before["best_epoch"].values())
 
 
 def test_a_run_stopped_in_phase_c_resumes_there(tmp_path):
@@ -249,6 +304,7 @@ def test_a_state_written_before_scales_existed_resumes_as_a_run_without_them(tmp
     state = torch.load(run_dir / "state.pt", weights_only=True)
     for added in ("scales", "inlier_seeds", "range_frames"):  # fields added after such a state was written
         del state["recipe"][added]
+    del state["best"]  # saved since; without it only the last epoch's weights are known
     torch.save(state, run_dir / "state.pt")
     train.run(_args("--encoder-epochs 1 --regressor-epochs 2 --resume", run_dir))
     history = json.loads((run_dir / "history.json").read_text())["history"]
@@ -262,7 +318,7 @@ def test_scales_that_cannot_work_are_one_usage_error(scales, tmp_path):
 
 
 def test_range_frames_join_the_training_and_validation_clouds_at_their_metric_radii(tmp_path):
-    from triplet_normal_ros.training.range_scans import depth_frames, lidar_scans
+    from triplet_normal_ros.simulation.range_scans import depth_frames, lidar_scans
     from triplet_normal_ros.training.trainer import _range_samplers
 
     run_dir = tmp_path / "range"

@@ -11,14 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core import defaults
 from ..core.conventions import METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
 from ..errors import CloudFormatError, EstimationCancelled, EstimatorError, UsageError
 from . import args as checks
 
-#: The node's defaults (ros/params.py), so a bag processed offline matches what the node would have published.
-DEFAULT_METHOD = "hybrid"
-DEFAULT_RADIUS = 0.03
-DEFAULT_VIEWPOINT = (0.0, 0.0, 0.0)
 #: io.bag_output.SEGMENT_SECONDS (a test checks), written here so that `--help` does not import rosbags.
 SEGMENT_SECONDS = 30.0
 
@@ -46,24 +43,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="S",
         help=f"close a crash-safe segment of OUT.partial at least every S seconds (default {SEGMENT_SECONDS:g})",
     )
-    p.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD, help=f"default {DEFAULT_METHOD}, as the node")
-    p.add_argument("--radius", type=float, default=DEFAULT_RADIUS, metavar="R", help=f"in m (default {DEFAULT_RADIUS})")
+    p.add_argument("--method", choices=METHODS, default=defaults.METHOD, help=f"default {defaults.METHOD}, as the node")
+    p.add_argument(
+        "--radius", type=float, default=defaults.RADIUS, metavar="R", help=f"in m (default {defaults.RADIUS})"
+    )
     p.add_argument(
         "--k",
         type=int,
         metavar="K",
         help=f"learned/hybrid: points per patch (default: the checkpoint's); pca: cap (default {PCA_DEFAULT_K})",
     )
-    p.add_argument("--checkpoint", metavar="C", help="safetensors checkpoint or shipped name (default, lite)")
-    p.add_argument("--device", default="auto", metavar="D", help="auto, cpu, cuda or cuda:N (default auto)")
+    p.add_argument(
+        "--checkpoint",
+        metavar="C",
+        help="safetensors path or shipped name (default: the node's: lite on a CPU, default on a GPU)",
+    )
+    p.add_argument("--device", default=defaults.DEVICE, metavar="D", help="auto, cpu, cuda or cuda:N (default auto)")
     p.add_argument("--batch-size", type=int, metavar="B", help="patches per network call (default: the estimator's)")
     checks.add_hybrid_options(p)
-    p.add_argument("--neighbours", choices=NEIGHBOUR_SEARCHES, default="auto", help="neighbour search (default auto)")
+    p.add_argument("--neighbours", choices=NEIGHBOUR_SEARCHES, default=defaults.NEIGHBOURS, help="neighbour search")
     p.add_argument(
         "--viewpoint",
         type=float,
         nargs=3,
-        default=DEFAULT_VIEWPOINT,
+        default=defaults.VIEWPOINT,
         metavar=("X", "Y", "Z"),
         help="flip normals to face this point of the cloud's frame (default 0 0 0: the sensor)",
     )
@@ -76,6 +79,10 @@ def run(args: argparse.Namespace) -> int:
     from ..io.bags import InputBag
 
     _check(args)
+    if args.checkpoint is None:  # the node's rule for an empty checkpoint parameter
+        from ..core.device import device_type
+
+        args.checkpoint = defaults.shipped_checkpoint(device_type(args.device))
     try:
         with InputBag(args.input) as bag:
             summary = _convert(args, bag)
@@ -202,15 +209,11 @@ def _with_normals(estimator, message, viewpoint, stop: threading.Event) -> memor
 
 
 def _estimate(estimator, points: np.ndarray, shape, viewpoint, stop: threading.Event) -> tuple[np.ndarray, np.ndarray]:
-    """Normals and curvature for every point, NaN rows where xyz is not finite or the ball too sparse; oriented."""
-    if not np.isfinite(points).all(axis=1).any():
-        return np.full((len(points), 3), np.nan, np.float32), np.full(len(points), np.nan, np.float32)
-    normals, curvature = estimator.estimate(points, shape=shape, cancel=stop)
-    if viewpoint is not None:
-        from ..core.orientation import orient_towards_viewpoint
+    """Normals and curvature for every point by the node's per-cloud step."""
+    from ..core.cloud import estimate_cloud
 
-        normals = orient_towards_viewpoint(points, normals, viewpoint)
-    return normals, curvature
+    result = estimate_cloud(estimator, points, shape=shape, viewpoint=viewpoint, cancel=stop)
+    return result.normals, result.curvature
 
 
 def _merge(writer) -> None:

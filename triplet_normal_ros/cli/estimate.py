@@ -59,7 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=NEIGHBOUR_SEARCHES,
         default="auto",
         help="kdtree, grid (organized clouds: the pixel grid), voxel (the KD-tree's neighbours from cell lists on the "
-        "device), or auto (on a GPU grid for organized clouds, else voxel; on a CPU kdtree; default)",
+        "device), window (organized clouds: pca and hybrid's survey from integral images), or auto (default: window "
+        "for hybrid and whole-ball pca on organized clouds; else on a GPU grid for organized clouds, else voxel; on a "
+        "CPU kdtree)",
     )
 
 

@@ -28,3 +28,11 @@ def resolve_device(name: str = "auto") -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(name)
+
+
+def device_type(name: str) -> str:
+    """The device type ('cpu' or 'cuda') that `name` asks for, without checking it can be honoured: 'auto' is the GPU
+    when torch sees one. Choosing by it lets a bad name still fail where the estimator reports it."""
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    return "cuda" if name.startswith("cuda") else "cpu"

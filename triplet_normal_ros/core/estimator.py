@@ -31,6 +31,7 @@ from .conventions import (
 )
 from .device import resolve_device
 from .frames import masked_covariance, principal_frames, quadric_gain, surface_variation
+from .integral import MomentImage, ray_noise_normal, smallest_eigenvector
 from .neighbours import NeighbourIndex
 from .organized import GridIndex
 from .patches import Patches, build_patches, to_world
@@ -39,6 +40,10 @@ from .voxels import VoxelIndex
 #: Query points per neighbour-search chunk; bounds the (chunk, pool) index block and the cancel latency.
 CHUNK = 4096
 PCA_CHUNK = 16384
+#: Hybrid's window survey reads a window's parts only when it spans at least this many pixels on both axes (3: a
+#: LiDAR's 3-beam windows keep the survey, which measured 0.86 × pool PCA's MSAE on eval's scans; 5 sent them to pools
+#: and measured 1.01 ×).
+PART_SPAN = 3
 
 
 @dataclass
@@ -174,6 +179,14 @@ class NormalEstimator:
         curvature = np.full(len(query), np.nan, dtype=np.float32)
         timings = {} if timings is None else timings
         cloud = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64)).to(self.device)
+        if self._window_applies(shape, len(points)):
+            with _timed(timings, "pca"):
+                image = MomentImage(cloud, shape)
+            if image.usable and self.method == "pca":
+                with _timed(timings, "pca"):
+                    return self._window_estimate(image, query, progress)
+            if image.usable:
+                return self._window_hybrid(image, points, cloud, shape, query, cancel, timings, progress)
         with _timed(timings, "neighbours"):
             search = open_search(points, cloud, shape, self.neighbours, self.device)
         # Non-finite query points keep their NaN rows without costing a search (a third of a Kinect frame).
@@ -195,16 +208,85 @@ class NormalEstimator:
                 progress(len(out))
         return normals, curvature
 
+    def _window_applies(self, shape: tuple[int, int] | None, n: int) -> bool:
+        """The integral-image path answers pca on an organized cloud when asked ('window'), and by default ('auto')
+        when k asks for the whole ball (PCA_DEFAULT_K or more): a smaller k means the nearest k, which a window
+        cannot give. It is hybrid's survey on organized clouds under 'auto' and 'window'."""
+        if self.method == "learned" or not is_organized(shape, n):
+            return False
+        whole_ball = self.method == "hybrid" or self.k >= PCA_DEFAULT_K
+        return self.neighbours == "window" or (self.neighbours == "auto" and whole_ball)
+
+    def _window_estimate(
+        self, image: MomentImage, query: np.ndarray, progress: Callable[[int], None] | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """PCA of every pixel's window at once (see integral.py), then the query's rows."""
+        fit = image.pca(self.radius)
+        self.last_run = RunInfo("window", int(image.finite.sum()))
+        valid = fit.valid & image.finite.reshape(-1)
+        normals, curvature = _finish(fit.normal, surface_variation(fit.eigvals), valid)
+        if progress is not None:
+            progress(len(query))
+        return normals[query], curvature[query]
+
+    def _window_hybrid(self, image, points, cloud, shape, query, cancel, timings, progress):
+        """Hybrid on an organized cloud: the window survey everywhere (its ray-noise plane normal and PCL curvature),
+        then pools and the network only where the window's parts sit off its plane (`MomentImage.structure`).
+
+        A window less than PART_SPAN pixels across on either axis (a spinning LiDAR's beams at range, a sliver beside
+        an edge) cannot be cut into parts, so the cue is blind there; nor is a window that walls cut below three
+        points a fit. Those points take the pool path's own hybrid (pool PCA, the quadric gate, the network where it
+        opens), as they would without a grid, and the pool's curvature."""
+        with _timed(timings, "survey"):
+            fit = image.pca(self.radius)
+            survey = ray_noise_normal(fit)
+            cue = image.structure(fit, self.radius, survey)
+            finite = image.finite.reshape(-1)
+            valid = fit.valid & finite
+            top, bottom, left, right = fit.box
+            narrow = (bottom - top < PART_SPAN - 1) | (right - left < PART_SPAN - 1)
+            thin = finite & (narrow | ~fit.valid)  # a window that walls cut below 3 points may still hold a ball
+            structured = (cue.z > (3 * self.gate) ** 0.5) & (cue.bend > self.bend)
+            gated = valid & ~thin & structured
+            normals, curvature = _finish(survey, surface_variation(fit.eigvals), valid)
+            normals, curvature = normals[query], curvature[query]
+            network = np.flatnonzero(gated.cpu().numpy()[query])
+            pooled = np.flatnonzero(thin.cpu().numpy()[query])
+        self.last_run = RunInfo("window", int(np.isfinite(curvature).sum()))
+        if progress is not None:
+            progress(len(query) - len(network) - len(pooled))
+        if len(network) + len(pooled) == 0:
+            return normals, curvature
+        with _timed(timings, "neighbours"):
+            search = open_search(points, cloud, shape, self.neighbours, self.device)
+        for todo, run in ((network, self._learned_chunk), (pooled, self._hybrid_chunk)):
+            for lo in range(0, len(todo), CHUNK):
+                if cancel is not None and cancel.is_set():
+                    raise EstimationCancelled("estimation cancelled")
+                out = todo[lo : lo + CHUNK]
+                rows = torch.from_numpy(query[out]).to(self.device)
+                with _timed(timings, "neighbours"):
+                    pool = search.pool(rows, self.radius, self._pool_size())
+                answer, pool_curvature = run(cloud, cloud[rows], pool, rows, cancel, timings)
+                answered = np.isfinite(answer).all(axis=1)
+                normals[out[answered]] = answer[answered]
+                if todo is pooled:  # a thin window's curvature is a sliver's; the pool's is the ball's
+                    curvature[out] = pool_curvature
+                    normals[out[~answered]] = np.nan
+                if progress is not None:
+                    progress(len(out))
+        return normals, curvature
+
     def _pool_size(self) -> int:
         """PCA keeps k neighbours; the network sees k points drawn from a pool of POOL_FACTOR × k (the nearest, on the
         KD-tree and the cell lists; a uniform sample of the ball of about that size, on the pixel grid)."""
         return self.k if self.method == "pca" else POOL_FACTOR * self.k
 
-    def _pca_chunk(self, cloud, centres, pool, _rows, _cancel, timings) -> tuple[np.ndarray, np.ndarray]:
-        """PCA of each pool; the network methods' `rows` (hash keys) and `cancel` (between batches) are not needed."""
+    def _pca_chunk(self, cloud, centres, pool, rows, _cancel, timings) -> tuple[np.ndarray, np.ndarray]:
+        """PCA of each pool (`_pool_normals`: the normal and eigenvalues only, no frame); `cancel` is not needed."""
         with _timed(timings, "pca"):
-            _, _, valid, eigvals, frame = _pool_pca(cloud, centres, pool)
-            return _finish(frame[:, 2], surface_variation(eigvals), valid)
+            normal, eigvals, valid = _pool_normals(cloud, centres, pool, rows)
+            return _finish(normal, surface_variation(eigvals), valid)
 
     @torch.inference_mode()
     def _learned_chunk(self, cloud, centres, pool, rows, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
@@ -239,6 +321,7 @@ class NormalEstimator:
                     self.k,
                     centre_ids=rows[gated],
                     seed=self.seed,
+                    pca=(eigvals[gated], frame[gated]),
                     **self._fit_options(),
                 )
             local_normals = self._network(patches, cancel, timings)
@@ -274,15 +357,31 @@ def open_search(
     image, else the KD-tree. 'kdtree': the KD-tree. 'auto' on a GPU keeps the whole estimate on the device: the grid
     where it applies, else the cell lists; 'auto' on a CPU is the KD-tree, the fastest there (docs/RESULTS.md).
     """
-    on_gpu = neighbours == "auto" and device.type == "cuda"
-    organized = shape is not None and shape[0] > 1 and shape[0] * shape[1] == len(points)
-    if (neighbours == "grid" or on_gpu) and organized:
+    choice = search_choice(neighbours, device.type, is_organized(shape, len(points)))
+    if choice == "grid":
         grid = GridIndex(cloud, *shape)
         if grid.usable:
             return _GridSearch(grid)
-    if neighbours == "voxel" or on_gpu:
+        choice = "voxel" if device.type == "cuda" and neighbours == "auto" else "kdtree"
+    if choice == "voxel":
         return _VoxelSearch(VoxelIndex(cloud))
     return _TreeSearch(NeighbourIndex(points), device)
+
+
+def search_choice(neighbours: str, device_type: str, organized: bool) -> str:
+    """Which pool search `neighbours` means on a device of `device_type` ('cpu', 'cuda'): 'grid', 'voxel' or
+    'kdtree'. A decision of its own so that a CPU-only machine can run (and test) exactly what a GPU would."""
+    on_gpu = neighbours == "auto" and device_type == "cuda"
+    if (neighbours in ("grid", "window") or on_gpu) and organized:
+        return "grid"
+    if neighbours == "voxel" or on_gpu:
+        return "voxel"
+    return "kdtree"
+
+
+def is_organized(shape: tuple[int, int] | None, n: int) -> bool:
+    """Whether `shape` = (height, width) describes an image of the cloud's n points with more than one row."""
+    return shape is not None and shape[0] > 1 and shape[0] * shape[1] == n
 
 
 class _Search:
@@ -304,8 +403,7 @@ class _TreeSearch(_Search):
         self.index, self.device, self.finite = index, device, index.finite
 
     def pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
-        idx, _ = self.index.ball(self.index.points[rows.cpu().numpy()], radius, size)
-        return torch.from_numpy(idx).to(self.device)
+        return torch.from_numpy(self.index.nearest(self.index.points[rows.cpu().numpy()], radius, size)).to(self.device)
 
 
 class _DeviceSearch(_Search):
@@ -338,6 +436,45 @@ def _pool_pca(cloud: torch.Tensor, centres: torch.Tensor, pool: torch.Tensor) ->
     local = cloud[pool.clamp_min(0)] - centres.unsqueeze(1)
     eigvals, frame = principal_frames(masked_covariance(local, mask), valid)
     return local, mask, valid, eigvals, frame
+
+
+#: `_pool_normals` hands a pool to eigh when its two smallest eigenvalues lie closer than this fraction of the trace:
+#: there the closed form's normal drifts from eigh's (1e-12 at 1e-3 on a depth frame, growing as the gap closes), and
+#: at 0 (a line, coincident points, an isotropic blob) only eigh's choice of axis is the old answer.
+_EIGEN_GAP = 1e-3
+
+
+def _pool_normals(
+    cloud: torch.Tensor, centres: torch.Tensor, pool: torch.Tensor, rows: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(unit normals (B, 3), ascending eigenvalues (B, 3), valid (B,)) of each -1 padded pool around `centres` =
+    `cloud[rows]`: `_pool_pca`'s normal and eigenvalues (to ~1e-12) for `pca`, which needs no frame, in a few passes.
+
+    Padding gathers the query point itself, whose offset is exactly 0, so no mask pass touches the gathered block.
+    Coordinates are gathered column by column into one (3, B, P) block (a column gather is 4x faster than a row
+    gather in torch) and centred in place, so the only big allocation is that block; E[x x^T] is then one batched
+    matmul. Offsets from the query point (|x| <= r) keep E[x x^T] - m m^T exact enough in float64. The 3 × 3
+    eigenproblem is the closed form of `integral.smallest_eigenvector` instead of batched eigh (most of the old
+    cost), with eigh only where the two smallest eigenvalues nearly coincide (`_EIGEN_GAP`).
+    """
+    mask = pool >= 0
+    count = mask.sum(dim=1)
+    valid = count >= MIN_NEIGHBOURS
+    idx = torch.where(mask, pool, rows.unsqueeze(1)).view(-1)
+    coords = torch.empty((3, *pool.shape), dtype=cloud.dtype, device=cloud.device)
+    for axis in range(3):
+        torch.index_select(cloud[:, axis], 0, idx, out=coords[axis].view(-1))
+    local = coords.sub_(centres.T.unsqueeze(-1)).permute(1, 0, 2)  # (B, 3, P)
+    n = count.clamp_min(1).to(cloud.dtype)
+    mean = local.sum(dim=-1) / n.unsqueeze(-1)
+    cov = (local @ local.mT) / n.view(-1, 1, 1) - mean.unsqueeze(2) * mean.unsqueeze(1)
+    eigvals, normal = smallest_eigenvector(cov.reshape(-1, 9)[:, [0, 1, 2, 4, 5, 8]])
+    close = valid & (eigvals[:, 1] - eigvals[:, 0] <= _EIGEN_GAP * eigvals.sum(dim=-1))
+    if bool(close.any()):
+        exact, vectors = torch.linalg.eigh(cov[close])
+        eigvals[close] = exact.clamp_min(0.0)
+        normal[close] = vectors[..., 0]
+    return normal, eigvals, valid
 
 
 def _finish(normals: torch.Tensor, curvature: torch.Tensor, valid: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:

@@ -40,7 +40,7 @@ class GridIndex:
         self.finite = torch.isfinite(points).all(dim=1)
         self.range = torch.where(self.finite, points.norm(dim=1), torch.inf)
         grid = points.view(height, width, 3)
-        self.pitch = (_pitch(grid, 0), _pitch(grid, 1))  # per row (between rows r, r+1), per column
+        self.pitch = (ray_pitch(grid, 0), ray_pitch(grid, 1))  # per row (between rows r, r+1), per column
 
     @property
     def usable(self) -> bool:
@@ -103,7 +103,7 @@ def _spiral_offsets(half: int, device: torch.device) -> torch.Tensor:
     return grid[order]
 
 
-def _pitch(grid: torch.Tensor, axis: int) -> torch.Tensor | None:
+def ray_pitch(grid: torch.Tensor, axis: int) -> torch.Tensor | None:
     """The angle between adjacent pixel rays along `axis` (1: columns, 0: rows), per column (or per row): the median
     over the image, which follows a pinhole's shrinking pitch off-axis. None when the angles do not look like one
     sensor's (too few valid pairs, or a spread beyond MAX_PITCH_SPREAD): the cloud is not in its sensor's frame."""

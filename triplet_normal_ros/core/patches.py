@@ -38,6 +38,7 @@ def build_patches(
     seed: int = 0,
     scales: tuple[int, ...] = (),
     inlier_seeds: tuple[int, ...] = (),
+    pca: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> Patches:
     """Build patches from neighbour pools (B, P) of cloud indices, -1 padded (see `NeighbourIndex.ball`).
 
@@ -46,15 +47,16 @@ def build_patches(
     drawn with `generator` (training) or, given `centre_ids`, by a hash of (centre, neighbour, seed), so a point's
     patch never depends on which other points share its batch (inference). Non-empty `scales` adds the plane fits
     a scale head needs (`scales.scale_fits`, with inlier fits grown from `inlier_seeds`), from the whole pool like the
-    frame.
+    frame. `pca` = (eigenvalues, frames) of these same pools, as `frames.principal_frames` gave them, saves computing
+    them twice (hybrid has them from its survey); eigenvalues at any scale give the same curvature.
     """
     mask = pool >= 0
     valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
     safe = pool.clamp_min(0)
     local = (cloud[safe].to(torch.float64) - centres.to(torch.float64).unsqueeze(1)) / radius
     local = torch.where(mask.unsqueeze(-1), local, 0.0)  # padding may index a NaN point
-    eigvals, frame = principal_frames(masked_covariance(local, mask), valid)
-    frame = canonical_signs(frame, local, mask)
+    eigvals, frame = principal_frames(masked_covariance(local, mask), valid) if pca is None else pca
+    frame = canonical_signs(frame.to(torch.float64), local, mask)
     rot = frame if rotation is None else rotation.to(torch.float64)
     keys = None if centre_ids is None else hashed_keys(centre_ids, pool, seed)
     columns = sample_columns(mask, k, generator, keys)

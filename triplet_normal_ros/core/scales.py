@@ -80,6 +80,9 @@ def scale_fits(
     near_dist2 = torch.gather(dist2, 1, order)
     weight = mask.to(torch.float32)
     views = [(near[:, :m], near_weight[:, :m], near_dist2[:, :m], m) for m in scales]
+    # The whole pool is fitted again although its frame is `rotation`'s: its cues (variation, linearity, offset,
+    # reach, fill) come from the same `_fit` as every other candidate's, in the same float32 batch, and a separate
+    # path for one candidate of eight would save about a tenth of the fits at the price of two definitions of a cue.
     views.append((local, weight, dist2, pool_size or local.shape[1]))
     valid = weight.sum(dim=1).clamp_min(1)
     views += [(local, _inliers(local, weight, order[:, :s]), dist2, valid) for s in seeds]

@@ -1,8 +1,10 @@
 """A quick measurement of what an estimator manages on its device, so a user knows before the first frame.
 
 The node logs it at start-up: the learned method on a small CPU runs a few thousand points per second, and a full
-640x480 frame then takes minutes, which nothing said before. The probe is a small noisy box corner (flat faces and
-edges, so hybrid's gate sees both) scaled to the estimator's radius, timed after one warm-up call.
+640x480 frame then takes minutes, which nothing said before. The probe is a small organized depth image of a room's
+corner (flat walls and floor, and the folds where they meet, so hybrid's gate sees both), scaled to the estimator's
+radius and passed with its shape, so the path that runs is the one an organized camera frame takes; timed after one
+warm-up call.
 """
 
 from __future__ import annotations
@@ -14,8 +16,13 @@ import numpy as np
 
 from .estimator import NormalEstimator
 
-#: Points in the probe cloud: enough to time the network, few enough to keep start-up within a second or two.
-PROBE_POINTS = 1500
+#: The probe image (height, width): enough points to time the network, few enough to keep start-up within seconds.
+PROBE_SHAPE = (60, 80)
+PROBE_POINTS = PROBE_SHAPE[0] * PROBE_SHAPE[1]
+#: The probe camera's focal length in pixels, and how many pixels a ball's radius spans at the corner's distance.
+_FOCAL, _BALL_PIXELS = 70.0, 6.0
+#: Relative range noise: a depth camera's at about a metre.
+NOISE = 0.002
 #: A full depth frame, for the "seconds per frame" figure.
 FRAME_POINTS = 640 * 480
 
@@ -24,31 +31,49 @@ FRAME_POINTS = 640 * 480
 class Throughput:
     points_per_second: float
     network_share: float
+    search: str = "kdtree"
 
     def describe(self, device: str) -> str:
         frame = FRAME_POINTS / self.points_per_second
         share = f", {self.network_share:.0%} of probe points through the network" if self.network_share else ""
         return (
             f"expected throughput on {device}: about {self.points_per_second:,.0f} points/s "
-            f"(~{frame:.1f} s for a full 640x480 frame{share})"
+            f"(~{frame:.1f} s for a full 640x480 organized frame, {PATHS.get(self.search, self.search)}{share})"
         )
+
+
+#: How the start-up line names each path (`RunInfo.search`).
+PATHS = {
+    "window": "integral-image windows",
+    "grid": "pixel-grid pools",
+    "voxel": "cell-list pools",
+    "kdtree": "KD-tree pools",
+}
 
 
 def measure(estimator: NormalEstimator, seed: int = 0) -> Throughput:
     """Points per second of `estimator` on the probe cloud (its settings unchanged)."""
     cloud = probe_cloud(estimator.radius, seed)
-    estimator.estimate(cloud[:64])  # warm-up: first-call allocations and thread-pool start
+    estimator.estimate(cloud, shape=PROBE_SHAPE)  # warm-up: first-call allocations and thread-pool start
     start = time.perf_counter()
-    estimator.estimate(cloud)
+    estimator.estimate(cloud, shape=PROBE_SHAPE)
     seconds = max(time.perf_counter() - start, 1e-9)
-    return Throughput(len(cloud) / seconds, estimator.last_run.network_fraction)
+    run = estimator.last_run
+    return Throughput(len(cloud) / seconds, run.network_fraction, run.search)
 
 
 def probe_cloud(radius: float, seed: int = 0) -> np.ndarray:
-    """Three faces of a cube of side 10 r meeting at a corner, sampled so a ball holds ~100 points, 2 % noise."""
-    rng = np.random.default_rng(seed)
-    face = rng.integers(0, 3, PROBE_POINTS)
-    side = 10 * radius
-    points = rng.uniform(0, side, (PROBE_POINTS, 3))
-    points[np.arange(PROBE_POINTS), face] = 0.0
-    return points + rng.normal(0, 0.02 * radius, points.shape)
+    """An organized PROBE_SHAPE depth image of a room's corner (two walls and the floor), NOISE range noise, at the
+    distance where a ball of `radius` spans about six pixels; (H·W, 3) in the camera's frame (z forward)."""
+    height, width = PROBE_SHAPE
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    rays = np.stack(((u - width / 2) / _FOCAL, (v - height / 2) / _FOCAL, np.ones_like(u)), axis=-1)
+    distance = radius * _FOCAL / _BALL_PIXELS
+    # Planes n · p = d facing the camera: the back-left wall, the back-right wall and the floor below.
+    planes = [(np.array([0.6, 0.0, -1.0]), -distance), (np.array([-0.6, 0.0, -1.0]), -distance)]
+    planes.append((np.array([0.0, -1.0, -0.3]), -0.4 * distance))
+    with np.errstate(divide="ignore"):
+        depths = [np.where(rays @ n < 0, d / (rays @ n), np.inf) for n, d in planes]  # t > 0 along each ray
+    depth = np.min(depths, axis=0)
+    depth = depth * (1 + NOISE * np.random.default_rng(seed).standard_normal(depth.shape))
+    return (rays * depth[..., None]).reshape(-1, 3)

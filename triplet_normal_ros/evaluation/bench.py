@@ -1,11 +1,15 @@
 """`triplet-normal bench`: points/s per stage of the real inference path, every method side by side in one run.
 
-Two clouds: a simulated 640x480 depth frame (training.range_scans, radius 0.05 m) and a noisy 100k-point torus
+Two clouds: a simulated 640x480 depth frame (simulation.depth_camera, radius 0.05 m) and a noisy 100k-point torus
 (radius 5 % of its diagonal). Every method estimates the same fixed-seed subset of query points with neighbourhoods
 from the whole cloud; points/s per stage = timed queries / seconds in that stage, and the last columns extrapolate
 to the whole cloud. Machines are noisy, so the table also gives each method's time as a ratio to PCA at k = 30
 (Open3D's usual cap) measured in the same run, next to the machine's plain matmul GFLOP/s and the network's share
 of it. The PointCloud2 conversion rows are the per-frame overhead the node adds.
+
+When Open3D or OpenCV's `RgbdNormals` imports (neither is a dependency), their estimators run on the same clouds as
+anchors (`evaluation.anchors`): a second table gives every method's and every anchor's whole-cloud seconds, its ratio
+to Open3D's KNN-30 estimate and its MSAE at the same query points against the clouds' exact normals.
 """
 
 from __future__ import annotations
@@ -15,12 +19,15 @@ import os
 import platform
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..core.conventions import DEPTH_RADIUS, POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
+from . import anchors as outside
+from .metrics import invalid_count, msae
 
 NOISE_REL = 0.005
 WARMUP_QUERIES = 256
@@ -46,6 +53,8 @@ class Row:
     cloud_s: float  # the whole cloud: per-cloud cost + per-query cost × every valid point
     timings: dict[str, float] = field(default_factory=dict)
     network_share: float = 0.0
+    msae: float | None = None  # at the timed query points, against the cloud's exact normals when it has them
+    invalid: int | None = None
 
     def rate(self, stage: str) -> str:
         t = self.timings.get(stage)
@@ -54,16 +63,22 @@ class Row:
 
 def torus_cloud(n: int, seed: int = 0, major: float = 1.0, minor: float = 0.4) -> np.ndarray:
     """Area-uniform samples of a torus plus 0.5%-of-diagonal Gaussian noise: a closed, curved, noisy surface."""
+    return torus_sample(n, seed, major, minor)[0]
+
+
+def torus_sample(n: int, seed: int = 0, major: float = 1.0, minor: float = 0.4) -> tuple[np.ndarray, np.ndarray]:
+    """`torus_cloud`'s points and the exact unit normals of the surface points they were drawn at."""
     rng = np.random.default_rng(seed)
     u = rng.uniform(0, 2 * np.pi, 4 * n)  # around the tube; area density ∝ (major + minor cos u): reject to match
     u = u[rng.uniform(0, major + minor, 4 * n) < major + minor * np.cos(u)][:n]
     v = rng.uniform(0, 2 * np.pi, len(u))
     ring = major + minor * np.cos(u)
     points = np.column_stack([ring * np.cos(v), ring * np.sin(v), minor * np.sin(u)])
-    return points + rng.normal(scale=NOISE_REL * bbox_diagonal(points), size=points.shape)
+    normals = np.column_stack([np.cos(u) * np.cos(v), np.cos(u) * np.sin(v), np.sin(u)])
+    return points + rng.normal(scale=NOISE_REL * bbox_diagonal(points), size=points.shape), normals
 
 
-def contenders(checkpoint: str | None, method: str | None) -> list[tuple[str, dict]]:
+def timed_methods(checkpoint: str | None, method: str | None) -> list[tuple[str, dict]]:
     """(label, NormalEstimator keyword arguments) of every method timed; the lite checkpoint when it ships."""
     from ..core.checkpoint import SHIPPED
 
@@ -81,35 +96,56 @@ def contenders(checkpoint: str | None, method: str | None) -> list[tuple[str, di
     return [r for r in rows if method is None or r[1]["method"] == method]
 
 
+def query_sets(valid: np.ndarray, queries: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(warm-up, fixed-cost, timed) query indices among `valid`, the same fixed-seed draws for every method."""
+    rng = np.random.default_rng(0)
+    warm = rng.choice(valid, min(WARMUP_QUERIES, len(valid)), replace=False)
+    fixed = rng.choice(valid, FIXED_QUERIES, replace=False)
+    return warm, fixed, np.sort(rng.choice(valid, min(queries, len(valid)), replace=False))
+
+
 def bench_one(
-    cloud: str, points: np.ndarray, shape, radius: float, label: str, options: dict, device: str, queries: int
+    cloud: str,
+    points: np.ndarray,
+    shape,
+    radius: float,
+    label: str,
+    options: dict,
+    device: str,
+    queries: int,
+    truth: np.ndarray | None = None,
 ) -> Row:
     """Time one method on `queries` fixed-seed valid points after a small warm-up call.
 
     A run on `FIXED_QUERIES` points measures the per-cloud cost (building the search, converting the cloud), so the
     whole-cloud figure is fixed + per-query × points rather than the subset's wall time scaled up, which would
-    multiply the fixed cost too and flatter slow methods against fast ones.
+    multiply the fixed cost too and flatter slow methods against fast ones. With `truth` (N, 3), the row also
+    carries the MSAE of the timed estimate against it.
     """
     from ..core.estimator import NormalEstimator
 
     estimator = NormalEstimator(radius=radius, device=device, **options)
     valid = np.flatnonzero(np.isfinite(points).all(axis=1))
-    rng = np.random.default_rng(0)
-    estimator.estimate(points, rng.choice(valid, min(WARMUP_QUERIES, len(valid)), replace=False), shape=shape)
+    warm, fixed_query, query = query_sets(valid, queries)
+    estimator.estimate(points, warm, shape=shape)
     start = time.perf_counter()
-    estimator.estimate(points, rng.choice(valid, FIXED_QUERIES, replace=False), shape=shape)
+    estimator.estimate(points, fixed_query, shape=shape)
     fixed = time.perf_counter() - start
-    query = np.sort(rng.choice(valid, min(queries, len(valid)), replace=False))
     timings: dict[str, float] = {}
     start = time.perf_counter()
-    estimator.estimate(points, query, timings=timings, shape=shape)
+    normals, _ = estimator.estimate(points, query, timings=timings, shape=shape)
     wall = time.perf_counter() - start
     info = estimator.last_run
     share = info.network_fraction if options["method"] != "pca" else 0.0
     per_query = max(wall - fixed, 0.0) / max(len(query) - FIXED_QUERIES, 1)
     cloud_s = fixed + per_query * (len(valid) - FIXED_QUERIES)
-    return Row(cloud, label, options["method"], info.search, str(estimator.device), len(query), len(valid), wall,
-               cloud_s, timings, share)
+    if options["method"] == "pca" and info.search == "window":
+        cloud_s = wall  # the integral image answers every pixel whatever the query: one call costs the whole cloud
+    row = Row(cloud, label, options["method"], info.search, str(estimator.device), len(query), len(valid), wall,
+              cloud_s, timings, share)
+    if truth is not None:
+        row.msae, row.invalid = msae(normals, truth[query]), invalid_count(normals)
+    return row
 
 
 def neighbour_rows(points: np.ndarray, shape, device: str, queries: int) -> list[tuple[str, int, float, float]]:
@@ -166,33 +202,87 @@ def run(
     checkpoint: str | None,
     out: Path | None,
     command: str,
+    libraries: Sequence[outside.Library] | None = outside.LIBRARIES,
 ) -> None:
-    """Time every method on both clouds, print the tables and, with `out`, write them as block `bench`."""
+    """Time every method on both clouds, print the tables and, with `out`, write them as block `bench`.
+
+    `libraries`: where the outside anchors come from (`anchors.LIBRARIES`); None runs none and says nothing.
+    """
     from tqdm import tqdm
 
-    from ..training.range_scans import depth_frame
+    from ..simulation.depth_camera import depth_frame
     from .bench_pointcloud2 import conversion_rows
     from .report import update_section
 
     dev = device or "cpu"
     frame = depth_frame(0)
-    torus = torus_cloud(n_points)
+    torus, torus_normals = torus_sample(n_points)
     clouds = [
-        ("depth frame 640x480", frame.points.reshape(-1, 3).astype(np.float64), frame.points.shape[:2], DEPTH_RADIUS),
-        (f"torus {n_points:,}", torus, None, RADIUS_FRACTION * bbox_diagonal(torus)),
+        Cloud("depth frame 640x480", frame.points.reshape(-1, 3).astype(np.float64), frame.points.shape[:2],
+              DEPTH_RADIUS, frame.normals.reshape(-1, 3).astype(np.float64)),
+        Cloud(f"torus {n_points:,}", torus, None, RADIUS_FRACTION * bbox_diagonal(torus), torus_normals),
     ]
-    jobs = [(c, label, opts) for c in clouds for label, opts in contenders(checkpoint, method)]
+    found, skipped = outside.available_anchors(libraries) if libraries is not None else ([], [])
+    if (line := outside.skip_line(skipped)) is not None:
+        print(line, file=sys.stderr)
+    truth = bool(found)  # scoring costs little, but the table that shows it only comes with anchors
+    jobs = [(c, label, opts) for c in clouds for label, opts in timed_methods(checkpoint, method)]
     rows = [
-        bench_one(c[0], c[1], c[2], c[3], label, opts, dev, queries)
+        bench_one(c.name, c.points, c.shape, c.radius, label, opts, dev, queries, c.normals if truth else None)
         for c, label, opts in tqdm(jobs, desc="bench", unit="run", disable=None, file=sys.stderr)
     ]
-    searches = neighbour_rows(clouds[0][1], clouds[0][2], dev, min(queries, 20_000))
+    anchor_rows = [
+        outside.measure(a, c.name, c.points, c.shape, c.radius, c.normals, c.timed_query(queries))
+        for c in clouds
+        for a in found
+        if outside.applies(a, c.shape)
+    ]
+    searches = neighbour_rows(clouds[0].points, clouds[0].shape, dev, min(queries, 20_000))
     gflops = matmul_gflops()
     conversions = conversion_rows()
     text = markdown(rows, searches, gflops, network_mflop(checkpoint), conversions, command)
+    if found:
+        text += "\n\n" + anchors_markdown(rows, anchor_rows, found, skipped)
     print(text)
     if out is not None:
         update_section(out, "bench", text)
+
+
+@dataclass
+class Cloud:
+    """One benchmarked cloud: its points (N, 3) with NaN rows, organized shape or None, radius, exact normals."""
+
+    name: str
+    points: np.ndarray
+    shape: tuple[int, int] | None
+    radius: float
+    normals: np.ndarray
+
+    def timed_query(self, queries: int) -> np.ndarray:
+        """The query points `bench_one` times on this cloud (the same draws)."""
+        return query_sets(np.flatnonzero(np.isfinite(self.points).all(axis=1)), queries)[2]
+
+
+def anchors_markdown(rows: list[Row], anchor_rows: list[outside.AnchorRow], found, skipped) -> str:
+    """The package's methods beside the outside anchors on the same clouds: seconds, ratios, MSAE."""
+    entries = []
+    for cloud in dict.fromkeys(r.cloud for r in rows):
+        entries += [outside.Entry(r.cloud, r.label, r.cloud_s, r.msae, r.invalid, False) for r in rows
+                    if r.cloud == cloud]
+        entries += [outside.Entry(a.cloud, a.name, a.seconds, a.msae, a.invalid, True) for a in anchor_rows
+                    if a.cloud == cloud]
+    versions = ", ".join(dict.fromkeys(a.version for a in found if a.version))
+    about = "; ".join(f"{a.name}: {a.about}" for a in found if a.about)
+    missing = f" Not importable in this run: {', '.join(s.name for s in skipped)}." if skipped else ""
+    lines = [
+        f"Outside anchors on the same clouds (marked *; {versions}): {about}. *s per cloud* is the table above's for "
+        f"the package and the median of {outside.REPEATS} whole-cloud calls after a warm-up for an anchor (with its "
+        "own threads); MSAE (rad²) is at the same timed query points against the exact normals, a missing normal "
+        "counting as 90°." + missing,
+        "",
+        *outside.comparison_lines(entries, f"pca, k = {PCA_SMALL_K}"),
+    ]
+    return "\n".join(lines)
 
 
 def markdown(rows, searches, gflops, net, conversions, command: str) -> str:

@@ -34,7 +34,8 @@ CAD_POOLED = (0.005, 0.01)
 
 @dataclass
 class CloudScores:
-    """Scores of the three contenders on one cloud, and per-point angles for the heat map and the intervals."""
+    """Scores of ours, PCA at 5 % and PCA at its best radius on one cloud, and per-point angles for the heat map and
+    the intervals."""
 
     shape: str
     kind: str
@@ -49,8 +50,9 @@ class CloudScores:
     floor_angles: np.ndarray | None = field(default=None, repr=False)  # CAD only: the floor's rad² per query point
 
 
-class Contenders:
-    """The learned estimator and a PCA estimator, reused across clouds (the checkpoint is loaded once)."""
+class CloudScorer:
+    """Scores ours, PCA at 5 % and the best-radius PCA on a cloud; the two estimators are reused across clouds (the
+    checkpoint is loaded once)."""
 
     def __init__(self, checkpoint: str | None, device: str) -> None:
         from ..core.estimator import NormalEstimator
@@ -146,14 +148,14 @@ def pcpnet_noisy(points: np.ndarray, sigma_rel: float, diag: float) -> np.ndarra
 # ---------------------------------------------------------------- runs
 
 
-def evaluate_validation(contenders: Contenders, per_cloud: int, quick: bool) -> list[CloudScores]:
+def evaluate_validation(scorer: CloudScorer, per_cloud: int, quick: bool) -> list[CloudScores]:
     from tqdm import tqdm
 
     results = []
     for cloud in tqdm(validation_clouds(quick), desc="eval val", unit="cloud", disable=None, file=sys.stderr):
         points = np.asarray(cloud.points, dtype=np.float64)
         query = query_indices(len(points), per_cloud)
-        ours, pca, best, angles = contenders.score(points, cloud.normals[query], query, bbox_diagonal(points))
+        ours, pca, best, angles = scorer.score(points, cloud.normals[query], query, bbox_diagonal(points))
         scores = CloudScores(cloud.name, cloud.kind, cloud.noise, len(query), ours, pca, best, angles)
         if cloud.kind == "cad":
             scores.floor_angles, expected = cad_floor(cloud, query, quick)
@@ -162,7 +164,7 @@ def evaluate_validation(contenders: Contenders, per_cloud: int, quick: bool) -> 
     return results
 
 
-def evaluate_pcpnet(contenders: Contenders, directory: Path, per_cloud: int, quick: bool) -> list[CloudScores]:
+def evaluate_pcpnet(scorer: CloudScorer, directory: Path, per_cloud: int, quick: bool) -> list[CloudScores]:
     from tqdm import tqdm
 
     shapes = pcpnet_shapes(directory, quick)
@@ -173,7 +175,7 @@ def evaluate_pcpnet(contenders: Contenders, directory: Path, per_cloud: int, qui
         diag = bbox_diagonal(clean)
         points = pcpnet_noisy(clean, level, diag)
         query = query_indices(len(points), per_cloud)
-        ours, pca, best, angles = contenders.score(points, normals[query], query, diag)
+        ours, pca, best, angles = scorer.score(points, normals[query], query, diag)
         kind = "cad" if name in ("cube100k", "fandisk100k") else "smooth"
         results.append(CloudScores(name, kind, level, len(query), ours, pca, best, angles, points[query]))
     return results
@@ -197,12 +199,12 @@ def run(
     per_cloud = min(points_per_cloud, 200) if quick else points_per_cloud
     if not quick and "pcpnet" in sets:
         pcpnet_shapes_present(pcpnet_dir)
-    contenders = Contenders(checkpoint, device)
-    header = _header(command, checkpoint, quick, contenders, per_cloud)
+    scorer = CloudScorer(checkpoint, device)
+    header = _header(command, checkpoint, quick, scorer, per_cloud)
 
     if "val" in sets:
         start = time.perf_counter()
-        val = evaluate_validation(contenders, per_cloud, quick)
+        val = evaluate_validation(scorer, per_cloud, quick)
         val_md = validation_markdown(val, header, time.perf_counter() - start)
         print(val_md)
         if out is not None:
@@ -212,7 +214,7 @@ def run(
         if kind not in sets:
             continue
         start = time.perf_counter()
-        estimators = range_eval.contenders(checkpoint, device, radius=spec.radius)
+        estimators = range_eval.range_estimators(checkpoint, device, radius=spec.radius)
         scores, summary = range_eval.evaluate_set(kind, estimators, quick)
         markdown = range_eval.set_markdown(kind, scores, summary, header.split("\n")[0])
         markdown += f"\n\nWall time {(time.perf_counter() - start) / 60:.1f} min."
@@ -223,7 +225,7 @@ def run(
     if "pcpnet" not in sets:
         return
     start = time.perf_counter()
-    pcp = evaluate_pcpnet(contenders, pcpnet_dir, per_cloud, quick)
+    pcp = evaluate_pcpnet(scorer, pcpnet_dir, per_cloud, quick)
     docs = Path(out).parent if out is not None else None
     image = _heatmap(pcp, docs / "images" / "heatmap_fandisk.png") if docs is not None else None
     pcp_md = pcpnet_markdown(pcp, header, time.perf_counter() - start, image, docs)
@@ -254,15 +256,15 @@ def _heatmap(results: list[CloudScores], path: Path) -> tuple[Path, CloudScores]
 # ---------------------------------------------------------------- markdown
 
 
-def _header(command: str, checkpoint: str | None, quick: bool, contenders: Contenders, per_cloud: int) -> str:
-    meta = contenders.ours.metadata
+def _header(command: str, checkpoint: str | None, quick: bool, scorer: CloudScorer, per_cloud: int) -> str:
+    meta = scorer.ours.metadata
     trained_by = meta.get("training", {}).get("command") if isinstance(meta.get("training"), dict) else None
     lines = [
         f"Command: `{command}`" + (" (**--quick subset: not a result**)" if quick else ""),
         f"Checkpoint: `{checkpoint or 'shipped default'}` (sha256 {_sha256(checkpoint)[:12]}, "
-        f"k = {contenders.ours.k}"
+        f"k = {scorer.ours.k}"
         + (f", trained by `{trained_by}`" if trained_by else "")
-        + f") · device {contenders.ours.device} · {per_cloud} query points per cloud, fixed seed "
+        + f") · device {scorer.ours.device} · {per_cloud} query points per cloud, fixed seed "
         f"(`default_rng({QUERY_SEED}).choice`), neighbourhoods from the whole cloud · {time.strftime('%Y-%m-%d')}",
         "",
         "MSAE = mean squared angle (rad²), RMSE = sqrt(mean squared angle) (degrees), both sign-invariant; "

@@ -73,13 +73,14 @@ def validation_surface(name: str, n_points: int, seed: int) -> tuple[PlanarSurfa
     the sample is redrawn here from the same seed (milliseconds) to recover that exact transform; the noise sigma of
     a level is that level × the diagonal of the float32 clean points, as `add_noise` computes it.
     """
-    from ..training.dataset import _seed, normalise, sample_surface
+    from ..simulation.seeds import derive_seed
+    from ..training.dataset import normalise, sample_surface
     from ..training.shapes import catalogue
 
     spec = next((s for s in catalogue("val") if s.name == name), None)
     if spec is None or spec.kind != "cad":
         raise ValueError(f"{name!r} is not a CAD validation shape")
-    raw, _ = sample_surface(spec, n_points, np.random.default_rng(_seed(seed, name, "sample")))
+    raw, _ = sample_surface(spec, n_points, np.random.default_rng(derive_seed(seed, name, "sample")))
     clean, centre, diagonal = normalise(raw)
     clean = clean.astype(np.float32).astype(np.float64)
     mesh = spec.mesh()

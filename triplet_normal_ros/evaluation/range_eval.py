@@ -1,4 +1,4 @@
-"""Accuracy on simulated range images (training.range_scans): what robots see, at a metric radius.
+"""Accuracy on simulated range images (simulation.range_scans): what robots see, at a metric radius.
 
 Two sets: Kinect-like depth frames at r = 0.05 m and 32-beam spinning-LiDAR scans at r = 0.25 m. Per frame, every
 method estimates at the same fixed-seed subset of valid pixels, with neighbourhoods from the whole frame; MSAE is
@@ -18,7 +18,7 @@ from ..core.conventions import DEPTH_RADIUS, LIDAR_RADIUS, POOL_FACTOR
 from ..core.estimator import NormalEstimator
 from .metrics import angles_rad
 
-#: Frames evaluated per set (seeds 0..n-1 of training.range_scans) and query pixels per frame.
+#: Frames evaluated per set (seeds 0..n-1 of simulation.range_scans) and query pixels per frame.
 FRAMES, QUERIES = 3, 5000
 QUICK_FRAMES, QUICK_QUERIES = 1, 300
 QUERY_SEED = 0
@@ -51,17 +51,20 @@ class MethodScore:
     seconds: float = 0.0
     network: int = 0
     estimated: int = 0
+    method: str = ""
 
     def msae(self, edge_only: bool = False) -> float:
         sq, edge = np.concatenate(self.squared), np.concatenate(self.near_edge)
         return float(np.mean(sq[edge] if edge_only else sq)) if (edge.any() or not edge_only) else float("nan")
 
 
-def contenders(
+def range_estimators(
     checkpoint: str | None, device: str, k: int | None = None, radius: float = DEPTH_RADIUS
 ) -> dict[str, NormalEstimator]:
-    """PCA at the k = 30 cap (Open3D's usual), PCA over the learned method's pool, learned, and hybrid; with the
-    shipped default, also the lite checkpoint learned and hybrid."""
+    """PCA at the k = 30 cap (Open3D's usual), PCA over the learned method's pool (through the KD-tree, so it stays
+    that pool on a GPU too), PCA of the integral-image windows (what `pca` at its default k runs on an organized
+    frame), learned, and hybrid (on these organized frames: the window survey); with the shipped default, also the
+    lite checkpoint learned and hybrid."""
     from ..core.checkpoint import SHIPPED
 
     learned = NormalEstimator("learned", radius=radius, checkpoint=checkpoint, device=device, k=k)
@@ -69,8 +72,9 @@ def contenders(
     rows = {
         "PCA, k = 30": NormalEstimator("pca", radius=radius, k=30, device=device),
         f"PCA, k = {POOL_FACTOR * learned.k} (the learned pool)": NormalEstimator(
-            "pca", radius=radius, k=POOL_FACTOR * learned.k, device=device
+            "pca", radius=radius, k=POOL_FACTOR * learned.k, device=device, neighbours="kdtree"
         ),
+        "PCA, window (integral images, the whole ball)": NormalEstimator("pca", radius=radius, device=device),
         "learned": learned,
         f"hybrid (F > {hybrid.gate:g}, bend > {hybrid.bend:g})": hybrid,
     }
@@ -84,13 +88,13 @@ def evaluate_set(kind: str, estimators: dict[str, NormalEstimator], quick: bool)
     """Score every estimator on one set's frames; returns the scores and a summary of the frames."""
     from tqdm import tqdm
 
-    from ..training import range_scans
+    from ..simulation import range_scans
 
     spec = SETS[kind]
     count = QUICK_FRAMES if quick else FRAMES
     frames = range_scans.depth_frames(count) if kind == "depth" else range_scans.lidar_scans(count)
     per_frame = QUICK_QUERIES if quick else QUERIES
-    scores = [MethodScore(name, [], []) for name in estimators]
+    scores = [MethodScore(name, [], [], method=e.method) for name, e in estimators.items()]
     summary = {"frames": len(frames), "queries": 0, "near_edge": 0}
     for frame in tqdm(frames, desc=f"eval {kind}", unit="frame", disable=None, file=sys.stderr):
         points, normals = frame.points.reshape(-1, 3), frame.normals.reshape(-1, 3)
@@ -113,7 +117,7 @@ def evaluate_set(kind: str, estimators: dict[str, NormalEstimator], quick: bool)
 
 def _near_edge(frame, radius: float) -> np.ndarray:
     """The frame's own mask when it was made for this radius, else recomputed from its face ids at `radius`."""
-    from ..training.range_scans import EDGE_RADIUS, near_edges
+    from ..simulation.edges import EDGE_RADIUS, near_edges
 
     if radius == EDGE_RADIUS:
         return frame.near_edge.reshape(-1)
@@ -127,7 +131,7 @@ def set_markdown(kind: str, scores: list[MethodScore], summary: dict, header: st
     learned = next(s for s in scores if s.name == "learned")
     rows = []
     for s in scores:
-        share = f"{s.network / s.estimated:.0%}" if s.estimated and s.network else "-"
+        share = f"{s.network / s.estimated:.1%}" if s.estimated and s.method != "pca" else "-"
         rows.append(
             f"| {s.name} | {s.msae():.5f} | {s.msae(True):.5f} | {s.msae() / reference.msae():.3f} "
             f"| {s.msae() / learned.msae():.3f} | {share} | {s.seconds:.1f} |"

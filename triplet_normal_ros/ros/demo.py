@@ -2,9 +2,9 @@
 
 This process is the "camera": it starts the node as a separate process, publishes each full 640x480 frame best
 effort (as camera drivers do, through the shipped Fast DDS profile), waits for the answer and measures the round
-trip. The node first runs its default, ``hybrid`` (PCA everywhere, the network near edges: the learned accuracy at a
-quarter of its cost), then, after a run-time parameter change, PCA over the same 512-point pool of the same 5 cm
-ball. Pictures go to ``out/normal_map.png`` and ``out/side_by_side.png``
+trip. The node first runs its default, ``hybrid`` (a window survey everywhere, the network near edges and folds), then,
+after a run-time parameter change, ``pca`` at its default k: PCA of each pixel's integral-image window over the same
+5 cm ball. Pictures go to ``out/normal_map.png`` and ``out/side_by_side.png``
 (labelled panels: camera image, hybrid, PCA, same frames, same radius).
 """
 
@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import random
-import signal
 import subprocess
 import sys
 import time
@@ -22,17 +20,18 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core import defaults
 from ..evaluation.normal_map import normals_to_rgb, write_png
 from ..io.pointcloud2 import NORMAL_FIELDS, read_field
+from .node_process import node_env, params_file, start_node, stop_node, wait_for_node
 from .replay import FRAMES, SENSOR_INPUT, Frame, ReplayClient, load_frame
 
 INPUT, OUTPUT = "/demo/camera/depth/points", "/demo/camera/depth/normals"
-RADIUS = 0.05
+RADIUS = defaults.RADIUS
 #: The node's defaults (hybrid, the default checkpoint) at a depth camera's usual radius.
 HYBRID = {"method": "hybrid", "radius": RADIUS}
-#: PCA over exactly the pool hybrid's own PCA uses (POOL_FACTOR × the checkpoint's k = 512 nearest in the ball), so the
-#: two pictures differ only where the network answered.
-PCA = {"method": "pca", "radius": RADIUS, "k": 512}
+#: PCA at the node's default k (the whole ball): on these organized frames, the integral-image windows.
+PCA = {"method": "pca", "radius": RADIUS}
 
 
 @dataclass(frozen=True)
@@ -57,43 +56,10 @@ class Result:
         )
 
 
-def _params_file(path: Path, params: dict[str, object]) -> Path:
-    """Parameter file for the node: no QoS override, so full frames take the default path (README, QoS)."""
-    lines = ["/**:", "  ros__parameters:"]
-    lines += [f"    {k}: {v!r}" if not isinstance(v, str) else f"    {k}: {v}" for k, v in params.items()]
-    path.write_text("\n".join(lines) + "\n")
-    return path
-
-
-def _node_env(prefix: Path) -> dict[str, str]:
-    """What sourcing the install gives a Python package, on a private localhost-only ROS graph."""
-    env = dict(os.environ)
-    site = prefix / "lib" / f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages"
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(site), env.get("PYTHONPATH")) if p)
-    env.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 100)))
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["RCUTILS_COLORIZED_OUTPUT"] = "0"
-    return env
-
-
 def _start_node(prefix: Path, out: Path, env: dict[str, str]) -> subprocess.Popen:
-    executable = prefix / "lib" / "triplet_normal_ros" / "node"
-    if not executable.is_file():
-        raise SystemExit(f"demo: no installed node at {executable}; run colcon build first (make demo does)")
-    params = _params_file(out / "demo_params.yaml", {**HYBRID, "stats_period": 30.0})
-    args = [str(executable), "--ros-args", "--params-file", str(params), "-r", f"input:={INPUT}"]
-    args += ["-r", f"output:={OUTPUT}"]
-    log = (out / "node.log").open("w")
-    return subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT, cwd=out)
-
-
-def _wait_for(client: ReplayClient, node: subprocess.Popen, out: Path, timeout: float = 120.0) -> None:
-    """Until the node's topics and services match; fail fast (with its own error line) if it exits instead."""
-    deadline = time.monotonic() + timeout
-    while not client.wait_for_node(1.0):
-        if node.poll() is not None or time.monotonic() > deadline:
-            log = (out / "node.log").read_text(errors="replace").strip().splitlines()
-            raise SystemExit(f"demo: the node did not come up: {log[-1] if log else 'no output'}")
+    """The node with its defaults (hybrid) at the demo's radius, a statistics line every 30 s."""
+    params = params_file(out / "demo_params.yaml", {**HYBRID, "stats_period": 30.0})
+    return start_node(prefix, params, {"input": INPUT, "output": OUTPUT}, out / "node.log", env)
 
 
 def _prime(client: ReplayClient, frame: Frame) -> None:
@@ -128,7 +94,7 @@ def _pictures(out: Path, hybrid: list[Result], pca: list[Result]) -> tuple[Path,
         [
             (f"{h.frame.name}: camera image", h.frame.rgb_image()),
             (f"hybrid, r = {RADIUS * 100:g} cm, {h.latency_s:.1f} s", normals_to_rgb(h.normals)),
-            (f"PCA, r = {RADIUS * 100:g} cm, same 512-point pool, {p.latency_s:.1f} s", normals_to_rgb(p.normals)),
+            (f"PCA, r = {RADIUS * 100:g} cm, integral-image windows, {p.latency_s:.1f} s", normals_to_rgb(p.normals)),
         ]
         for h, p in zip(hybrid, pca, strict=True)
     ]
@@ -148,37 +114,27 @@ def _summary(results: list[Result]) -> None:
 def run(prefix: Path, out: Path, names: list[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     frames = [load_frame(n) for n in names]
-    env = _node_env(prefix)
+    env = node_env(prefix)
     os.environ.update({k: v for k, v in env.items() if k.startswith(("ROS_", "RCUTILS_"))})
     node = _start_node(prefix, out, env)
     try:
         with ReplayClient(INPUT, OUTPUT, input_qos=SENSOR_INPUT) as client:  # best effort, as camera drivers
-            _wait_for(client, node, out)
+            wait_for_node(client, node, out / "node.log")
             _prime(client, frames[0])
             print(f"hybrid (the node's default), radius {RADIUS} m, full 640x480 frames:")
             hybrid = _replay(client, frames, "hybrid")
             ok, reason = client.set_parameters(PCA)
             if not ok:
                 raise SystemExit(f"demo: switching to pca was rejected: {reason}")
-            print(f"pca over the same {RADIUS} m ball and 512-point pool, full 640x480 frames, after a change:")
+            print(f"pca over the same {RADIUS} m ball (integral-image windows), full 640x480 frames, after a change:")
             pca = _replay(client, frames, "pca")
         _summary(hybrid + pca)
         for path in _pictures(out, hybrid, pca):
             print(f"wrote {path}")
     finally:
-        code = _stop(node)
+        code = stop_node(node)
         print(f"node stopped on SIGINT with exit code {code}; its log is {out / 'node.log'}")
     return 0 if code == 0 else 1
-
-
-def _stop(node: subprocess.Popen) -> int | None:
-    if node.poll() is None:
-        node.send_signal(signal.SIGINT)
-    try:
-        return node.wait(10)
-    except subprocess.TimeoutExpired:
-        node.kill()
-        return None
 
 
 def main(argv: list[str] | None = None) -> int:

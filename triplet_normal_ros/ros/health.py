@@ -122,7 +122,7 @@ def settings_values(settings: NodeSettings, device: str, k: int, topics: tuple[s
     """What the node runs with: estimator settings, the device in use, the k in force, the resolved topics."""
     return (
         ("method", settings.method),
-        ("checkpoint", NOT_AVAILABLE if settings.method == "pca" else settings.checkpoint or "default"),
+        ("checkpoint", NOT_AVAILABLE if settings.method == "pca" else settings.checkpoint_in_force()),
         ("device", device),
         ("radius (m)", f"{settings.radius:g}"),
         ("k", str(k)),

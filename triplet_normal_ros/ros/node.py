@@ -30,8 +30,8 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import PointCloud2
 
 from ..core import throughput
+from ..core.cloud import estimate_cloud
 from ..core.estimator import NormalEstimator
-from ..core.orientation import orient_towards_viewpoint
 from ..errors import CheckpointError, CloudFormatError, EstimationCancelled, EstimatorError
 from ..io.pointcloud2 import empty_with_normals, read_xyz, with_normals
 from . import diagnostics
@@ -181,7 +181,7 @@ class TripletNormalNode(Node):
 
     @staticmethod
     def _describe(estimator: NormalEstimator, s: NodeSettings) -> str:
-        source = "" if s.method == "pca" else f", checkpoint={s.checkpoint or 'default'}"
+        source = "" if s.method == "pca" else f", checkpoint={s.checkpoint_in_force()}"
         return (
             f"method={s.method}{source}, device={estimator.device}, radius={s.radius:g} m, k={_k(estimator, s)}, "
             f"batch_size={s.batch_size}, gate={s.gate:g}, bend={s.bend:g}, neighbours={s.neighbours}, "
@@ -231,20 +231,16 @@ class TripletNormalNode(Node):
     def _estimate(
         self, estimator: NormalEstimator, s: NodeSettings, points: np.ndarray, shape: tuple[int, int] | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Normals and curvature for every point; NaN rows where xyz is not finite or the ball is too sparse."""
-        if not np.isfinite(points).all(axis=1).any():
+        """Normals and curvature for every point, by the shared per-cloud step with this snapshot's settings."""
+        estimator.radius, estimator.k, estimator.batch_size = s.radius, _k(estimator, s), s.batch_size
+        estimator.gate, estimator.bend, estimator.neighbours = s.gate, s.bend, s.neighbours
+        viewpoint = s.viewpoint if s.orient else None
+        result = estimate_cloud(estimator, points, shape=shape, viewpoint=viewpoint, cancel=self._cancel)
+        if result.known == 0 and not np.isfinite(points).all(axis=1).any():
             self.get_logger().warning(
                 "cloud has no finite points; publishing NaN normals", throttle_duration_sec=THROTTLE_S
             )
-            return np.full((len(points), 3), np.nan, np.float32), np.full(len(points), np.nan, np.float32)
-        estimator.radius, estimator.k, estimator.batch_size = s.radius, _k(estimator, s), s.batch_size
-        estimator.gate, estimator.bend, estimator.neighbours = s.gate, s.bend, s.neighbours
-        # Holes (non-finite xyz) are skipped by the estimator itself and come back as NaN rows; an organized cloud's
-        # (height, width) lets the estimator walk its pixel grid.
-        normals, curvature = estimator.estimate(points, cancel=self._cancel, shape=shape)
-        if s.orient:
-            normals = orient_towards_viewpoint(points, normals, s.viewpoint)
-        return normals, curvature
+        return result.normals, result.curvature
 
     def _report_stats(self) -> None:
         """Close the statistics window: log its line and publish its health on /diagnostics."""

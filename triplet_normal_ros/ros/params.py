@@ -11,14 +11,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ..core.conventions import HYBRID_BEND, HYBRID_GATE, METHODS, MIN_NEIGHBOURS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
-from ..core.device import validate_device_name
+from ..core import defaults
+from ..core.conventions import METHODS, MIN_NEIGHBOURS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
+from ..core.device import device_type, validate_device_name
 
 #: Parameters whose change builds a new estimator (loading the checkpoint); the rest apply to the next cloud in place.
 RELOAD_PARAMS = frozenset({"method", "checkpoint", "device"})
 
 #: Value of ``k`` that means "the method's default": the checkpoint's k for learned, PCA_DEFAULT_K for pca.
-K_METHOD_DEFAULT = 0
+K_METHOD_DEFAULT = defaults.K
 
 
 @dataclass(frozen=True)
@@ -38,7 +39,7 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "method",
         str,
-        "hybrid",
+        defaults.METHOD,
         "Normal estimator: 'learned' (triplet network), 'pca', or 'hybrid' (PCA; the network where not flat).",
         None,
         "learned | pca | hybrid",
@@ -46,20 +47,20 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "checkpoint",
         str,
-        "",
+        defaults.CHECKPOINT,
         "A .safetensors checkpoint for 'learned' and 'hybrid': a path, or a shipped name ('default', 'lite': 6.5x "
-        "fewer FLOPs, k = 64); empty means 'default'.",
+        "fewer FLOPs, k = 64); empty means the shipped one for the device: 'default' on a GPU, 'lite' on a CPU.",
     ),
     ParamSpec(
         "device",
         str,
-        "auto",
+        defaults.DEVICE,
         "Torch device; 'auto' takes the GPU when torch sees one.",
         None,
         "auto | cpu | cuda | cuda:N",
     ),
-    ParamSpec("batch_size", int, 256, "Patches per forward pass of the learned method.", (1, 1 << 20)),
-    ParamSpec("radius", float, 0.03, "Neighbourhood ball radius in metres (> 0).", (1e-4, 100.0)),
+    ParamSpec("batch_size", int, defaults.BATCH_SIZE, "Patches per forward pass of the learned method.", (1, 1 << 20)),
+    ParamSpec("radius", float, defaults.RADIUS, "Neighbourhood ball radius in metres (> 0).", (1e-4, 100.0)),
     ParamSpec(
         "k",
         int,
@@ -72,7 +73,7 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "gate",
         float,
-        HYBRID_GATE,
+        defaults.GATE,
         "hybrid: the network answers where a quadric explains the neighbourhood better than PCA's plane by more than "
         "this F statistic (about 1 on any flat surface); lower sends more points to the network.",
         (0.0, 1e9),
@@ -80,7 +81,7 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "bend",
         float,
-        HYBRID_BEND,
+        defaults.BEND,
         "hybrid: ... and where that quadric departs from the plane by more than this RMS height, as a fraction of "
         "'radius' (mild sensor waviness stays with PCA); 0 leaves the choice to 'gate' alone.",
         (0.0, 1e9),
@@ -88,18 +89,20 @@ SPECS: tuple[ParamSpec, ...] = (
     ParamSpec(
         "neighbours",
         str,
-        "auto",
+        defaults.NEIGHBOURS,
         "Neighbour search: 'kdtree'; 'grid' walks an organized cloud's pixel grid on the device (falls back to the "
         "KD-tree for unorganized clouds); 'voxel' finds the KD-tree's neighbours from sorted cell lists on the device; "
-        "'auto' uses the grid (organized) or voxel (unorganized) on a GPU and the KD-tree on a CPU.",
+        "'window' answers pca and hybrid's survey from integral images of an organized cloud, O(1) per pixel; 'auto' "
+        "takes 'window' for hybrid and whole-ball pca on organized clouds, else the grid (organized) or voxel on a GPU "
+        "and the KD-tree on a CPU.",
         None,
         " | ".join(NEIGHBOUR_SEARCHES),
     ),
-    ParamSpec("orient", bool, True, "Flip normals toward 'viewpoint' (PCL's flipNormalTowardsViewpoint)."),
+    ParamSpec("orient", bool, defaults.ORIENT, "Flip normals toward 'viewpoint' (PCL's flipNormalTowardsViewpoint)."),
     ParamSpec(
         "viewpoint",
         list,
-        [0.0, 0.0, 0.0],
+        list(defaults.VIEWPOINT),
         "[x, y, z] in the cloud's frame that normals face when 'orient' is true; the origin is the depth sensor.",
         None,
         "three finite floats",
@@ -114,18 +117,22 @@ SPEC_BY_NAME: dict[str, ParamSpec] = {s.name: s for s in SPECS}
 class NodeSettings:
     """A validated snapshot of every parameter; the worker reads one snapshot per cloud, so updates never tear."""
 
-    method: str = "hybrid"
-    checkpoint: str = ""
-    device: str = "auto"
-    batch_size: int = 256
-    radius: float = 0.03
-    k: int = K_METHOD_DEFAULT
-    gate: float = HYBRID_GATE
-    bend: float = HYBRID_BEND
-    neighbours: str = "auto"
-    orient: bool = True
-    viewpoint: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    stats_period: float = 5.0
+    method: str = SPEC_BY_NAME["method"].default
+    checkpoint: str = SPEC_BY_NAME["checkpoint"].default
+    device: str = SPEC_BY_NAME["device"].default
+    batch_size: int = SPEC_BY_NAME["batch_size"].default
+    radius: float = SPEC_BY_NAME["radius"].default
+    k: int = SPEC_BY_NAME["k"].default
+    gate: float = SPEC_BY_NAME["gate"].default
+    bend: float = SPEC_BY_NAME["bend"].default
+    neighbours: str = SPEC_BY_NAME["neighbours"].default
+    orient: bool = SPEC_BY_NAME["orient"].default
+    viewpoint: tuple[float, float, float] = tuple(SPEC_BY_NAME["viewpoint"].default)
+    stats_period: float = SPEC_BY_NAME["stats_period"].default
+
+    def checkpoint_in_force(self) -> str:
+        """The checkpoint parameter, or for "" the shipped checkpoint for the device (`defaults.shipped_checkpoint`)."""
+        return self.checkpoint or defaults.shipped_checkpoint(device_type(self.device))
 
     def estimator_args(self) -> dict[str, Any]:
         """Keyword arguments for ``NormalEstimator``; k=None lets the estimator take its method's default."""
@@ -133,7 +140,7 @@ class NodeSettings:
             "method": self.method,
             "radius": self.radius,
             "k": self.k if self.k != K_METHOD_DEFAULT else None,
-            "checkpoint": self.checkpoint or None,
+            "checkpoint": self.checkpoint_in_force(),
             "device": self.device,
             "batch_size": self.batch_size,
             "gate": self.gate,

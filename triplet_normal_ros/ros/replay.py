@@ -1,9 +1,10 @@
 """Replay the shipped Kinect frames into a running node and collect its answers, from a separate process.
 
-Used by ``make demo`` (and, extended under test/ros/, by the cross-process tests). :class:`ReplayClient` owns its own
-rclpy context, so it can live in a test process (or beside other nodes) without touching the default context. It plays
-the camera driver: with ``SENSOR_INPUT`` it publishes best effort as drivers do, and like the node it loads the shipped
-Fast DDS profile, which a best-effort publisher of full-size clouds needs (docs/NODE.md, Transport).
+Used by ``make demo`` and the tools under docs/tools/, and extended by ``overload.OverloadClient`` (the soak) and
+under test/ros/ (the cross-process tests). :class:`ReplayClient` owns its own rclpy context, so it can live in a test
+process (or beside other nodes) without touching the default context. It plays the camera driver: with
+``SENSOR_INPUT`` it publishes best effort as drivers do, and like the node it loads the shipped Fast DDS profile,
+which a best-effort publisher of full-size clouds needs (docs/NODE.md, Transport).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ TITLES = {
 
 
 def plot_curves(history: list[dict], path: Path) -> None:
-    """One panel per phase that ran (phase (c) is off in both recipes), train and validation loss per epoch."""
+    """One panel per phase that ran (phase (c) is off in every preset), train and validation loss per epoch."""
     import matplotlib  # only here: training must not need a display, and importing the trainer stays cheap
 
     matplotlib.use("Agg")

@@ -12,7 +12,6 @@ import hashlib
 import json
 import os
 import tempfile
-import warnings
 import zlib
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -21,11 +20,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import TrainingError
+from ..simulation.cache import default_cache_dir, writable_cache
+from ..simulation.seeds import derive_seed
 from .shapes import ShapeSpec, catalogue
 
 NOISE_LEVELS: tuple[float, ...] = (0.0, 0.0025, 0.005, 0.01, 0.015, 0.025)  # clean + the paper's five, × bbox diagonal
 CODE_VERSION = 1  # bump when sampling or a shape changes, so stale cache entries are never read
-CACHE_ENV = "TRIPLET_NORMAL_CACHE"
 
 
 @dataclass
@@ -38,18 +38,6 @@ class LabelledCloud:
     noise: float
     points: np.ndarray
     normals: np.ndarray
-
-
-def default_cache_dir() -> Path:
-    """$TRIPLET_NORMAL_CACHE, else ~/.cache/triplet_normal_ros/data."""
-    override = os.environ.get(CACHE_ENV)
-    return Path(override) if override else Path.home() / ".cache" / "triplet_normal_ros" / "data"
-
-
-def _seed(*parts: int | str) -> int:
-    """A stable 63-bit seed from ints and names (crc32), so each shape and noise level draws its own stream."""
-    words = [zlib.crc32(p.encode()) if isinstance(p, str) else int(p) for p in parts]
-    return int(np.random.SeedSequence(words).generate_state(2, np.uint64)[0] >> np.uint64(1))
 
 
 def sample_surface(spec: ShapeSpec, n_points: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -126,22 +114,13 @@ def _save(path: Path, points: np.ndarray, normals: np.ndarray) -> None:
         raise
 
 
-def _writable_cache(cache_dir: Path) -> Path | None:
-    try:
-        cache_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        warnings.warn(f"training-data cache disabled, cannot create {cache_dir}: {err}", stacklevel=3)
-        return None
-    return cache_dir
-
-
 def clean_sample(spec: ShapeSpec, n_points: int, seed: int, cache_dir: Path | None) -> tuple[np.ndarray, np.ndarray]:
     """The clean normalised sample of one shape for a dataset seed, read from / written to the cache."""
     path = cache_dir / f"{spec.name}-{_cache_key(spec, n_points, seed)}.npz" if cache_dir else None
     cached = _load(path, n_points) if path and path.exists() else None
     if cached is not None:
         return cached
-    points, normals = sample_shape(spec, n_points, _seed(seed, spec.name, "sample"))
+    points, normals = sample_shape(spec, n_points, derive_seed(seed, spec.name, "sample"))
     if path:
         _save(path, points, normals)
     return points, normals
@@ -177,13 +156,13 @@ def build_dataset(
     from tqdm import tqdm
 
     specs, levels = _select(split, shapes), tuple(float(s) for s in noise_levels)
-    root = _writable_cache(Path(cache_dir) if cache_dir is not None else default_cache_dir())
+    root = writable_cache(Path(cache_dir) if cache_dir is not None else default_cache_dir())
     clouds = []
     for spec in tqdm(specs, desc=f"{split} clouds", unit="shape", disable=not progress):
         points, normals = clean_sample(spec, n_points, seed, root)
         points.setflags(write=False)
         normals.setflags(write=False)
         for level in levels:
-            noisy = add_noise(points, level, _seed(seed, spec.name, round(level * 1e6))) if level > 0 else points
+            noisy = add_noise(points, level, derive_seed(seed, spec.name, round(level * 1e6))) if level > 0 else points
             clouds.append(LabelledCloud(spec.name, spec.kind, level, noisy, normals))
     return clouds

@@ -92,7 +92,7 @@ RECIPES = {
         val_patches_per_cloud=500,
     ),
     "cpu": CPU,
-    # The shipped checkpoint (issue #12): the cpu recipe plus the scale head (plane fits over the nearest 8-128 pool
+    # The shipped checkpoint: the cpu recipe plus the scale head (plane fits over the nearest 8-128 pool
     # points), inlier fits grown from the nearest 16 and 32, and 12 simulated depth frames and 12 LiDAR scans among
     # the training clouds, and phase (b) twice as long; each measured in docs/RESULTS.md ("Toward the floor").
     "scales": replace(CPU, scales=[8, 16, 32, 64, 128], inlier_seeds=[16, 32], range_frames=12, regressor_epochs=40),

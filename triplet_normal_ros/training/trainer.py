@@ -1,8 +1,10 @@
-"""`triplet-normal train`: phase (a) the encoder with the triplet loss, phase (b) the regressor on its frozen latent.
+"""`triplet-normal train`: phase (a) the encoder with the triplet loss, phase (b) the regressor on its frozen latent,
+and an optional phase (c) that fine-tunes both.
 
 SGD (momentum 0.9, lr 0.01), lr × 0.1 after `patience` epochs without validation improvement, seeds fixed, tqdm
-progress, and a resumable state file after every epoch. Two recipes: the paper's (GPU scale) and a CPU one that
-produced the shipped checkpoint; docs/TRAINING.md records both.
+progress, and a resumable state file after every epoch. Four presets (`recipes.RECIPES`): `paper` (the paper's, GPU
+scale), `cpu` (the CPU base the others start from, and `ablate`'s), `scales` (cpu plus the scale head and simulated
+range frames: the shipped default checkpoint) and `lite` (the lite checkpoint); docs/TRAINING.md records each.
 
 Reproducibility: torch's global generator is seeded once, draws the weight initialisation and then one shuffle per
 epoch (`_shuffled_batches`); everything else draws from generators seeded per collection. Changing the order of those
@@ -11,6 +13,7 @@ calls changes the shipped checkpoint.
 
 import dataclasses
 import json
+import math
 import sys
 import time
 from collections.abc import Callable, Iterable
@@ -42,7 +45,9 @@ class TrainingRun:
     """What every phase reads and extends, in one place instead of eight arguments threaded through each phase.
 
     `state` is the state.pt being resumed (None on a fresh run). `history` gains one row per epoch and is saved
-    with the weights after every epoch, so a killed run loses at most the epoch in progress.
+    with the weights after every epoch, so a killed run loses at most the epoch in progress. `best` is what the run
+    ships: the weights of the least validation normal loss so far (phases (b) and (c), across every interruption),
+    with that loss and where they came from (`phase`, `epoch`; epoch -1 is the weights the phase started from).
     """
 
     model: TripletNormalNet
@@ -53,6 +58,7 @@ class TrainingRun:
     run_dir: Path
     state: dict | None = None
     history: list[dict] = field(default_factory=list)
+    best: dict | None = None  # {"phase", "epoch", "val", "model"}; None until a normal-loss phase starts
 
     def resumed(self, phase: str) -> dict | None:
         """The saved state when it stopped inside `phase`; None when this phase starts afresh."""
@@ -77,6 +83,7 @@ class TrainingRun:
             "history": self.history,
             "optimizer": opt.state_dict() if opt else None,
             "scheduler": sched.state_dict() if sched else None,
+            "best": self.best,
         }
         tmp = self.run_dir / "state.pt.tmp"
         torch.save(state, tmp)
@@ -114,6 +121,7 @@ def train(
         _phase_encoder(run)
     _phase_regressor(run)
     _phase_finetune(run)
+    _restore_best(run)  # also when a resumed run had no epoch left to run (state.pt holds the last weights)
     summary = _summary(run, start)
     save_checkpoint(out, run.model.cpu(), _metadata(recipe, summary))
     (run_dir / "history.json").write_text(json.dumps(summary, indent=2))
@@ -136,18 +144,22 @@ def _start(recipe: Recipe, run_dir: Path, dev: torch.device, resume: bool, encod
     elif encoder_from:
         _load_encoder(model, encoder_from)
     history = state["history"] if state else []
+    best = state.get("best") if state else None  # absent from states written before it was saved
     train_set, val_set = _samplers(recipe, "train"), _samplers(recipe, "val")
-    return TrainingRun(model, recipe, train_set, val_set, dev, run_dir, state, history)
+    return TrainingRun(model, recipe, train_set, val_set, dev, run_dir, state, history, best)
 
 
 def _summary(run: TrainingRun, start: float) -> dict:
-    """history.json's content; the best normal-loss validation epoch is what the checkpoint ships."""
-    normal_vals = (h["val"] for h in run.history if h["phase"] != "encoder")
+    """history.json's content: the shipped weights are the best normal-loss validation epoch (`run.best`), whose
+    loss and origin it reports; both None when no phase (b) or (c) epoch ran."""
+    trained = any(h["phase"] != "encoder" for h in run.history)
+    best = run.best if trained else None
     return {
         "wall_seconds": round(time.time() - start, 1),
         "device": str(run.device),
         "history": run.history,
-        "final_val_normal_loss": min(normal_vals, default=None),
+        "final_val_normal_loss": best["val"] if best else None,
+        "best_epoch": {"phase": best["phase"], "epoch": best["epoch"]} if best else None,
     }
 
 
@@ -184,7 +196,7 @@ def _range_samplers(recipe: Recipe, split: str) -> list[PatchSampler]:
     what robots see (noise along the ray, falling density, rings) beside the uniform CAD samples."""
     if not recipe.range_frames:
         return []
-    from .range_scans import TRAIN_SEED, VAL_SEED, depth_frames, lidar_scans
+    from ..simulation.range_scans import TRAIN_SEED, VAL_SEED, depth_frames, lidar_scans
 
     train = split == "train"
     count, seed = (recipe.range_frames, TRAIN_SEED) if train else (max(1, recipe.range_frames // 3), VAL_SEED)
@@ -225,6 +237,7 @@ def _phase_regressor(run: TrainingRun) -> None:
     resumed = run.resumed("regressor")
     resumed = resumed if resumed and resumed["epoch"] >= 0 else None  # -1: phase (a) just ended
     if resumed and resumed["epoch"] + 1 >= recipe.regressor_epochs:
+        _restore_best(run)  # state.pt holds the last epoch's weights; the next phase and the checkpoint take the best
         return  # finished before; resuming goes on to the next phase
     params = list(model.regressor.parameters()) + ([] if recipe.triplet else list(model.encoder.parameters()))
     opt, sched = _optimiser(params, recipe.lr, recipe, resumed)
@@ -277,10 +290,20 @@ def _val_patches(run: TrainingRun) -> NormalSet:
 
 
 def _fit_normals(run: TrainingRun, fit: _NormalFit) -> None:
-    """Epochs of the normal loss on `fit.head`; the model ends with the weights of its best validation epoch."""
+    """Epochs of the normal loss on `fit.head`; the model ends with the weights of the run's best validation epoch.
+
+    A phase resumed after an interruption continues from the best that state.pt recorded, so epochs before the
+    interruption still compete. A phase starting afresh starts from the weights it is given (the previous phase's best
+    when there was one): they are measured on this phase's validation path and compete as epoch -1.
+    """
     val_loss_of = partial(_recipe_loss, fit.head, fit.val, run.recipe, run.device)
     evaluate = partial(_mean_loss, fit.head, len(fit.val.patches), _NORMAL_EVAL_CHUNK, val_loss_of)
-    best = (evaluate(), None)
+    if fit.first == 0 or run.best is None:
+        # Afresh, the starting weights keep the origin of the previous phase's best; resuming a state.pt written
+        # before `best` was saved, only its last epoch's weights are known.
+        inherited = fit.first == 0 and run.best is not None
+        origin = (run.best["phase"], run.best["epoch"]) if inherited else (fit.phase, fit.first - 1)
+        run.best = {"phase": origin[0], "epoch": origin[1], "val": evaluate(), "model": _weights(run.model)}
     for epoch in range(fit.first, fit.epochs):
         data = fit.patches(epoch)
         batches = _shuffled_batches(len(data.patches), fit.batch_size)
@@ -289,11 +312,26 @@ def _fit_normals(run: TrainingRun, fit: _NormalFit) -> None:
         train_loss = _epoch(fit.head, batches, step, fit.opt, desc, fit.freeze_bn)
         val_loss = evaluate()
         fit.sched.step(val_loss)
-        if val_loss < best[0]:
-            best = (val_loss, {k: v.detach().clone() for k, v in run.model.state_dict().items()})
+        if _improves(val_loss, run.best["val"]):
+            run.best = {"phase": fit.phase, "epoch": epoch, "val": val_loss, "model": _weights(run.model)}
         run.end_epoch(fit.phase, epoch, (train_loss, val_loss), len(data.patches), fit.opt, fit.sched)
-    if best[1] is not None:  # ship the best validation epoch, not the last
-        run.model.load_state_dict(best[1])
+    _restore_best(run)  # ship the best validation epoch, not the last
+
+
+def _weights(model: torch.nn.Module) -> dict[str, torch.Tensor]:
+    """A copy of the model's weights and buffers that later training steps do not change."""
+    return {k: v.detach().clone() for k, v in model.state_dict().items()}
+
+
+def _improves(val_loss: float, best: float) -> bool:
+    """Lower is better; any number beats a NaN best (weights that had diverged), and a NaN never wins."""
+    return val_loss < best or (math.isnan(best) and not math.isnan(val_loss))
+
+
+def _restore_best(run: TrainingRun) -> None:
+    """Load the best weights so far into the model: what the next phase starts from and the checkpoint ships."""
+    if run.best is not None:
+        run.model.load_state_dict(run.best["model"])
 
 
 def _first_epoch(resumed: dict | None) -> int:

@@ -1,5 +1,6 @@
-"""Soak under overload, shared by test/ros/test_soak.py and docs/tools/soak.py: flood the running node with clouds of
-varying size, much faster than it can process them, and record what it does.
+"""Soak under overload: flood the running node with clouds of varying size, much faster than it can process them,
+and record what it does. test/ros/test_soak.py checks a 100 s soak; docs/tools/soak.py runs a longer one for the
+results file, so both measure the same thing.
 
 A fixed pool of clouds (organized crops and unorganized subsets of a shipped Kinect frame, 3k to 128k points) is sent
 round-robin, each time under a fresh stamp and one of several frame_ids. Every answer is checked against the cloud it
@@ -22,10 +23,10 @@ import numpy as np
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 
-from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, make_cloud, read_field, read_xyz
-from triplet_normal_ros.ros.replay import Frame, ReplayClient, load_frame
+from ..io.pointcloud2 import NORMAL_FIELDS, make_cloud, read_field, read_xyz
+from .replay import Frame, ReplayClient, load_frame
 
-#: The node's settings: PCA (the fast method), a depth camera's radius, a statistics line every second.
+#: The node's settings: PCA over the nearest 24 (a pool search, whatever the cloud), a 3 cm ball, stats every second.
 NODE_PARAMS = {"method": "pca", "radius": 0.03, "k": 24, "device": "cpu", "stats_period": 1.0}
 #: Organized crops (height, width) of the frame and unorganized subsets (point counts) of its finite points.
 CROPS = ((48, 64), (120, 160), (240, 320), (320, 400))

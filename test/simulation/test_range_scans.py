@@ -9,27 +9,39 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from triplet_normal_ros.training import range_scans as rs
+from triplet_normal_ros.simulation.depth_camera import DEPTH_RANGE, camera_rays, depth_frame, depth_scene, kinect_sigma
+from triplet_normal_ros.simulation.edges import EDGE_RADIUS, near_edges
+from triplet_normal_ros.simulation.lidar import (
+    LIDAR_HEIGHT,
+    LIDAR_RANGE,
+    lidar_elevations,
+    lidar_rays,
+    lidar_scan,
+    lidar_scene,
+)
+from triplet_normal_ros.simulation.range_frame import RangeFrame, dropout_probability, incidence_deg
+from triplet_normal_ros.simulation.range_scans import depth_frames
+from triplet_normal_ros.simulation.raycast import Box, Cylinder, Hits, Plane, Scene, cast
 
 SEED = 1
 H, W = 480, 640
 
 
 @pytest.fixture(scope="module")
-def frame() -> rs.RangeFrame:
-    return rs.depth_frame(SEED)
+def frame() -> RangeFrame:
+    return depth_frame(SEED)
 
 
 @pytest.fixture(scope="module")
-def clean() -> tuple[rs.Scene, np.ndarray, rs.Hits]:
+def clean() -> tuple[Scene, np.ndarray, Hits]:
     """The same scene cast again without noise: (scene, rays, hits) per pixel, row-major."""
-    scene, rays = rs.depth_scene(SEED), rs.camera_rays(W, H)
-    return scene, rays, rs.cast(scene, rays)
+    scene, rays = depth_scene(SEED), camera_rays(W, H)
+    return scene, rays, cast(scene, rays)
 
 
 @pytest.fixture(scope="module")
-def scan() -> rs.RangeFrame:
-    return rs.lidar_scan(SEED)
+def scan() -> RangeFrame:
+    return lidar_scan(SEED)
 
 
 def _angles_deg(a: np.ndarray, b: np.ndarray, signed: bool = True) -> np.ndarray:
@@ -38,22 +50,22 @@ def _angles_deg(a: np.ndarray, b: np.ndarray, signed: bool = True) -> np.ndarray
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-def _world(scene: rs.Scene, sensor: np.ndarray) -> np.ndarray:
+def _world(scene: Scene, sensor: np.ndarray) -> np.ndarray:
     return scene.origin + sensor @ scene.rotation.T
 
 
 def test_single_ray_hits_are_analytic() -> None:
-    box = rs.Box((2.0, 0.0, 0.0), (0.5, 0.5, 0.5))
-    yawed = rs.Box((0.0, 3.0, 0.0), (1.0, 0.2, 0.5), yaw=np.pi / 2)  # its long axis now along world y
-    cylinder = rs.Cylinder((0.0, 0.0, -5.0), 0.5, 2.0)
-    scene = rs.Scene((box, yawed, cylinder), np.zeros(3), np.eye(3))
-    hits = rs.cast(scene, np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.1, 0.0, -1.0], [-1.0, 0.0, 0.0]]))
+    box = Box((2.0, 0.0, 0.0), (0.5, 0.5, 0.5))
+    yawed = Box((0.0, 3.0, 0.0), (1.0, 0.2, 0.5), yaw=np.pi / 2)  # its long axis now along world y
+    cylinder = Cylinder((0.0, 0.0, -5.0), 0.5, 2.0)
+    scene = Scene((box, yawed, cylinder), np.zeros(3), np.eye(3))
+    hits = cast(scene, np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.1, 0.0, -1.0], [-1.0, 0.0, 0.0]]))
     np.testing.assert_allclose(hits.t[:3], [1.5, 2.0, 3.0])
     np.testing.assert_allclose(hits.normals[:3], [[-1, 0, 0], [0, -1, 0], [0, 0, 1]], atol=1e-12)
     offsets = scene.face_offsets()
     np.testing.assert_array_equal(hits.face, [offsets[0] + 1, offsets[1] + 1, offsets[2] + 1, -1])  # -x, -x, top
     assert np.isinf(hits.t[3])
-    side = rs.cast(rs.Scene((cylinder,), np.array([0.0, -3.0, -4.0]), np.eye(3)), np.array([[0.0, 1.0, 0.0]]))
+    side = cast(Scene((cylinder,), np.array([0.0, -3.0, -4.0]), np.eye(3)), np.array([[0.0, 1.0, 0.0]]))
     np.testing.assert_allclose(side.t, [2.5])
     np.testing.assert_allclose(side.normals, [[0, -1, 0]], atol=1e-12)
 
@@ -65,7 +77,7 @@ def test_clean_hits_lie_on_their_primitive_with_its_exact_normal(clean) -> None:
     normals = hits.normals[hit] @ scene.rotation.T
     owner = scene.primitive_of(hits.face[hit])
     seen = np.unique(owner)  # an object may hide behind another
-    assert {type(scene.primitives[i]) for i in seen} == {rs.Plane, rs.Box, rs.Cylinder} and len(seen) >= 5
+    assert {type(scene.primitives[i]) for i in seen} == {Plane, Box, Cylinder} and len(seen) >= 5
     step = 1e-6
     for i in seen:
         primitive = scene.primitives[i]
@@ -114,18 +126,18 @@ def test_depth_noise_is_along_the_ray_with_kinect_sigma(frame, clean) -> None:
         if band.sum() < 2000:
             continue
         checked += 1
-        expected = np.sqrt(np.mean(rs.kinect_sigma(z[band]) ** 2))
+        expected = np.sqrt(np.mean(kinect_sigma(z[band]) ** 2))
         assert abs(residual[band].std() / expected - 1) < 0.05, lo
         assert abs(residual[band].mean()) < 4 * expected / np.sqrt(band.sum())
     assert checked >= 5
-    assert rs.kinect_sigma(1.0) == pytest.approx(0.0012 + 0.0019 * 0.36)
+    assert kinect_sigma(1.0) == pytest.approx(0.0012 + 0.0019 * 0.36)
 
 
 def test_dropouts_grow_with_incidence_angle(scan) -> None:
-    scene, rays = rs.lidar_scene(SEED), rs.lidar_rays()
-    hits = rs.cast(scene, rays)
-    hit = np.isfinite(hits.t) & (hits.t <= rs.LIDAR_RANGE[1])
-    incidence = rs.incidence_deg(rays, hits.normals)
+    scene, rays = lidar_scene(SEED), lidar_rays()
+    hits = cast(scene, rays)
+    hit = np.isfinite(hits.t) & (hits.t <= LIDAR_RANGE[1])
+    incidence = incidence_deg(rays, hits.normals)
     dropped = hit & ~scan.valid.reshape(-1)
     edges = [0.0, 70.0, 78.0, 82.0, 86.0, 90.0]
     rates = []
@@ -133,20 +145,20 @@ def test_dropouts_grow_with_incidence_angle(scan) -> None:
         band = hit & (incidence >= lo) & (incidence < hi)
         assert band.sum() > 500, (lo, hi)
         rates.append(dropped[band].mean())
-        assert rates[-1] == pytest.approx(rs.dropout_probability(incidence[band]).mean(), abs=0.04), (lo, hi)
+        assert rates[-1] == pytest.approx(dropout_probability(incidence[band]).mean(), abs=0.04), (lo, hi)
     assert rates[0] < 0.01 and rates[-1] > 0.8
     assert np.all(np.diff(rates) > 0)
 
 
 def test_edge_mask_matches_brute_force_and_spares_open_floor(frame, clean) -> None:
     scene, rays, hits = clean
-    inside = np.isfinite(hits.t) & (hits.t <= rs.DEPTH_RANGE[1])
+    inside = np.isfinite(hits.t) & (hits.t <= DEPTH_RANGE[1])
     points, faces = rays[inside] * hits.t[inside, None], hits.face[inside]
-    mask = rs.near_edges(points, faces)
+    mask = near_edges(points, faces)
     full = np.zeros(H * W, dtype=bool)
     full[inside] = mask
     np.testing.assert_array_equal(frame.near_edge, full.reshape(H, W) & frame.valid)
-    tree, radius = cKDTree(points), rs.EDGE_RADIUS * (1 - 1e-9)  # query_ball_point counts the boundary, ours not
+    tree, radius = cKDTree(points), EDGE_RADIUS * (1 - 1e-9)  # query_ball_point counts the boundary, ours not
     sample = np.random.default_rng(0).choice(len(points), 1500, replace=False)
     sample = np.concatenate([sample, np.flatnonzero(mask)[::200]])  # enough near-edge points to matter
     brute = [
@@ -156,14 +168,12 @@ def test_edge_mask_matches_brute_force_and_spares_open_floor(frame, clean) -> No
     np.testing.assert_array_equal(mask[sample], brute)
     assert 0.02 < mask.mean() < 0.4
     world = _world(scene, points)
-    objects = [p for p in scene.primitives if not isinstance(p, rs.Plane)]
+    objects = [p for p in scene.primitives if not isinstance(p, Plane)]
     clearance = np.min([p.sdf(world) for p in objects], axis=0)
     wall = scene.primitives[1].sdf(world)
     open_floor = (faces == 0) & (clearance > 0.1) & (wall > 0.1)
     assert open_floor.sum() > 10_000 and not mask[open_floor].any()
-    tops = [
-        offset + 4 for offset, p in zip(scene.face_offsets(), scene.primitives, strict=True) if isinstance(p, rs.Box)
-    ]
+    tops = [offset + 4 for offset, p in zip(scene.face_offsets(), scene.primitives, strict=True) if isinstance(p, Box)]
     box_tops = np.isin(faces, tops)
     assert mask[box_tops].any() and not mask[box_tops].all()
 
@@ -174,7 +184,7 @@ def test_near_edges_on_two_planes() -> None:
     wall = np.stack(np.meshgrid([-0.005], g, g + 0.005), axis=-1).reshape(-1, 3)  # a corner along the y axis
     points = np.concatenate([floor, wall, [[np.nan, 0, 0]]])
     faces = np.concatenate([np.zeros(len(floor), int), np.ones(len(wall), int), [0]])
-    mask = rs.near_edges(points, faces, radius=0.05)
+    mask = near_edges(points, faces, radius=0.05)
     gap = np.concatenate([np.hypot(floor[:, 0] + 0.005, 0.005), np.hypot(wall[:, 2], 0.005)])  # to the other plane
     clear = np.abs(gap - 0.05) > 1e-6
     np.testing.assert_array_equal(mask[:-1][clear], gap[clear] < 0.05)
@@ -185,15 +195,15 @@ def test_near_edges_is_exact_when_the_nearest_point_is_not_its_voxels_first() ->
     """The coarse pass keeps one point per (radius / 5)-voxel; a closer point behind it must still count."""
     other = np.array([[0.001, 0.0, 0.0], [0.009, 0.0, 0.0]])  # one voxel; the first is the representative
     queries = np.array([[0.058, 0.0, 0.0], [0.0595, 0.0, 0.0], [0.2, 0.0, 0.0]])  # 0.049 and 0.0505 from the second
-    mask = rs.near_edges(np.concatenate([other, queries]), np.array([1, 1, 0, 0, 0]), radius=0.05)
+    mask = near_edges(np.concatenate([other, queries]), np.array([1, 1, 0, 0, 0]), radius=0.05)
     np.testing.assert_array_equal(mask, [False, True, True, False, False])
 
 
 def test_seeded_and_cached(tmp_path) -> None:
-    first = rs.depth_frames(2, seed=7, width=160, height=120, cache_dir=tmp_path)
+    first = depth_frames(2, seed=7, width=160, height=120, cache_dir=tmp_path)
     files = sorted(tmp_path.glob("depth-*.npz"))
     assert len(files) == 2 and first[0].points.shape == (120, 160, 3)
-    again = rs.depth_frames(2, seed=7, width=160, height=120, cache_dir=tmp_path / "elsewhere")  # regenerated
+    again = depth_frames(2, seed=7, width=160, height=120, cache_dir=tmp_path / "elsewhere")  # regenerated
     for a, b in zip(first, again, strict=True):
         for key in ("points", "normals", "face", "near_edge"):
             np.testing.assert_array_equal(getattr(a, key), getattr(b, key))
@@ -203,12 +213,12 @@ def test_seeded_and_cached(tmp_path) -> None:
     marked["points"] = marked["points"] + 1
     np.savez(files[0], **marked)
     files[1].write_bytes(b"truncated")  # a broken entry is regenerated
-    cached = {f.name: f for f in rs.depth_frames(2, seed=7, width=160, height=120, cache_dir=tmp_path)}
+    cached = {f.name: f for f in depth_frames(2, seed=7, width=160, height=120, cache_dir=tmp_path)}
     for original in first:
         shift = 1 if original.name == str(marked["name"]) else 0
         np.testing.assert_array_equal(cached[original.name].points, original.points + shift)
         np.testing.assert_array_equal(cached[original.name].face, original.face)
-    assert rs.depth_frames(1, seed=8, width=160, height=120, cache_dir=tmp_path)[0].name != first[0].name
+    assert depth_frames(1, seed=8, width=160, height=120, cache_dir=tmp_path)[0].name != first[0].name
 
 
 def test_lidar_scan_rings(scan) -> None:
@@ -218,12 +228,12 @@ def test_lidar_scan_rings(scan) -> None:
     rows, cols = np.nonzero(valid)
     p = scan.points[valid].astype(np.float64)
     elevation = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
-    np.testing.assert_allclose(elevation, rs.lidar_elevations()[rows], atol=1e-3)
+    np.testing.assert_allclose(elevation, lidar_elevations()[rows], atol=1e-3)
     azimuth = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
     np.testing.assert_allclose(np.mod(azimuth + cols * 0.2 + 180, 360) - 180, 0.0, atol=1e-3)
     floor = scan.face[valid] == 0
-    assert floor.any() and not floor[rs.lidar_elevations()[rows] > 0].any()  # beams above the horizon miss it
-    expected = rs.LIDAR_HEIGHT / np.sin(np.radians(-elevation[floor]))
+    assert floor.any() and not floor[lidar_elevations()[rows] > 0].any()  # beams above the horizon miss it
+    expected = LIDAR_HEIGHT / np.sin(np.radians(-elevation[floor]))
     residual = np.linalg.norm(p[floor], axis=1) - expected
     assert residual.std() == pytest.approx(0.015, rel=0.05)
 
@@ -234,6 +244,6 @@ def test_pca_recovers_floor_normal_away_from_edges(frame) -> None:
     points = frame.points.reshape(-1, 3)
     near = frame.valid & (frame.face == 0) & ~frame.near_edge & (frame.points[..., 2] < 2.5)
     query = np.random.default_rng(0).choice(np.flatnonzero(near), 1000, replace=False)
-    normals, _ = NormalEstimator("pca", radius=rs.EDGE_RADIUS).estimate(points, query=query)
+    normals, _ = NormalEstimator("pca", radius=EDGE_RADIUS).estimate(points, query=query)
     angles = _angles_deg(normals, frame.normals.reshape(-1, 3)[query], signed=False)
     assert np.median(angles) < 1.0 and np.percentile(angles, 95) < 3.0  # measured 0.5 and 1.2 degrees

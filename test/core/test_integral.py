@@ -1,0 +1,257 @@
+"""The integral-image path for organized clouds: its pieces against brute force, its windows at depth edges and holes,
+and its normals against the KD-tree's on simulated depth frames and LiDAR range images with exact normals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from triplet_normal_ros.core import integral
+from triplet_normal_ros.core.conventions import DEPTH_RADIUS, LIDAR_RADIUS, PCA_DEFAULT_K
+from triplet_normal_ros.core.estimator import NormalEstimator, search_choice
+
+HEIGHT, WIDTH, FOCAL = 60, 80, 70.0
+
+
+def pinhole(depth: np.ndarray) -> np.ndarray:
+    """(H, W) depths -> (H·W, 3) points of a pinhole camera looking along +z (NaN depth stays a hole)."""
+    v, u = np.mgrid[0 : depth.shape[0], 0 : depth.shape[1]].astype(np.float64)
+    x = (u - depth.shape[1] / 2) / FOCAL * depth
+    y = (v - depth.shape[0] / 2) / FOCAL * depth
+    return np.stack((x, y, depth), axis=-1).reshape(-1, 3)
+
+
+def plane_depth(normal: np.ndarray, offset: float) -> np.ndarray:
+    """Depth of each pixel's ray on the plane n·p = offset."""
+    v, u = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)
+    rays = np.stack(((u - WIDTH / 2) / FOCAL, (v - HEIGHT / 2) / FOCAL, np.ones_like(u)), axis=-1)
+    return offset / (rays @ normal)
+
+
+def angle_error(normals: np.ndarray, exact: np.ndarray) -> np.ndarray:
+    """Sign-invariant angle in degrees, by atan2(|a × b|, |a · b|): arccos near 1 would read float32 rounding as
+    hundredths of a degree."""
+    normals = np.asarray(normals, dtype=np.float64)
+    normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    sine = np.linalg.norm(np.cross(normals, exact), axis=1)
+    return np.degrees(np.arctan2(sine, np.abs(np.einsum("ij,ij->i", normals, exact))))
+
+
+def msae(normals: np.ndarray, exact: np.ndarray) -> float:
+    """Sign-invariant mean squared angle (rad²), a missing normal counting as 90°."""
+    error = np.radians(angle_error(normals, exact))
+    return float(np.where(np.isfinite(error), error, np.pi / 2).__pow__(2).mean())
+
+
+def test_closed_form_eigenvectors_match_lapack() -> None:
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(2000, 3, 3))
+    spd = a @ a.transpose(0, 2, 1)
+    spd[:500, :, 2] *= 1e-3  # nearly flat neighbourhoods, the common case
+    spd[:500, 2, :] *= 1e-3
+    upper = torch.from_numpy(spd[:, [0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]])
+    eigvals, vector = integral.smallest_eigenvector(upper)
+    reference, vectors = np.linalg.eigh(spd)
+    np.testing.assert_allclose(eigvals.numpy(), reference, rtol=1e-9, atol=1e-12 * reference[:, 2:].max())
+    alignment = np.abs(np.einsum("ij,ij->i", vector.numpy(), vectors[:, :, 0]))
+    assert alignment.min() > 1 - 1e-9
+
+
+def test_box_sums_equal_brute_force() -> None:
+    rng = np.random.default_rng(1)
+    channels = torch.from_numpy(rng.normal(size=(9, 11, 3)))
+    table = integral._summed_area(channels)
+    top, bottom = np.sort(rng.integers(0, 9, (2, 50)), axis=0)
+    left, right = np.sort(rng.integers(0, 11, (2, 50)), axis=0)
+    got = integral._box_sums(table, *(torch.from_numpy(b) for b in (top, bottom, left, right)))
+    for i in range(50):
+        expected = channels[top[i] : bottom[i] + 1, left[i] : right[i] + 1].sum(dim=(0, 1))
+        np.testing.assert_allclose(got[i].numpy(), expected.numpy(), atol=1e-12)
+
+
+def test_a_tilted_plane_gets_its_exact_normal_and_zero_curvature() -> None:
+    normal = np.array([0.3, -0.2, -1.0]) / np.linalg.norm([0.3, -0.2, -1.0])
+    points = pinhole(plane_depth(normal, -2.0))
+    estimator = NormalEstimator("pca", radius=0.1)
+    normals, curvature = estimator.estimate(points, shape=(HEIGHT, WIDTH))
+    assert estimator.last_run.search == "window"
+    assert angle_error(normals, np.tile(normal, (len(points), 1))).max() < 1e-4
+    assert np.abs(curvature).max() < 1e-9
+
+
+def test_windows_do_not_cross_a_depth_edge_and_edge_pixels_keep_a_normal() -> None:
+    """A board 60-90 cm in front of a wall, tilted differently: every pixel, those right at the silhouette included,
+    gets its own surface's exact normal, so no window mixed the two."""
+    wall = np.array([0.0, 0.2, -1.0]) / np.linalg.norm([0.0, 0.2, -1.0])
+    board = np.array([0.4, 0.0, -1.0]) / np.linalg.norm([0.4, 0.0, -1.0])
+    depth = plane_depth(wall, -2.5)
+    inside = np.zeros((HEIGHT, WIDTH), bool)
+    inside[15:45, 20:60] = True
+    depth[inside] = plane_depth(board, -1.5)[inside]
+    points = pinhole(depth)
+    exact = np.where(inside.reshape(-1, 1), board, wall)
+    normals, _ = NormalEstimator("pca", radius=0.15).estimate(points, shape=(HEIGHT, WIDTH))
+    assert np.isfinite(normals).all()
+    assert angle_error(normals, exact).max() < 1e-4
+
+
+def test_holes_are_nan_and_leave_their_neighbours_exact() -> None:
+    normal = np.array([0.0, 0.0, -1.0])
+    depth = plane_depth(normal, -1.5)
+    rng = np.random.default_rng(2)
+    depth[rng.random(depth.shape) < 0.3] = np.nan
+    points = pinhole(depth)
+    normals, curvature = NormalEstimator("pca", radius=0.08).estimate(points, shape=(HEIGHT, WIDTH))
+    holes = ~np.isfinite(points).all(axis=1)
+    assert np.isnan(normals[holes]).all() and np.isnan(curvature[holes]).all()
+    assert angle_error(normals[~holes], np.tile(normal, ((~holes).sum(), 1))).max() < 1e-4
+
+
+def test_auto_takes_the_window_only_for_whole_ball_pca_on_organized_clouds() -> None:
+    """On the CPU (the pool search named here is the CPU's; a GPU's is `search_choice`'s, tested below)."""
+    points = pinhole(plane_depth(np.array([0.0, 0.0, -1.0]), -1.0))
+    cases = [
+        (NormalEstimator("pca", radius=0.05, device="cpu"), (HEIGHT, WIDTH), "window"),
+        (NormalEstimator("pca", radius=0.05, k=30, device="cpu"), (HEIGHT, WIDTH), "kdtree"),  # nearest 30: no window
+        (NormalEstimator("pca", radius=0.05, device="cpu"), None, "kdtree"),  # unorganized
+        (NormalEstimator("pca", radius=0.05, k=30, neighbours="window", device="cpu"), None, "kdtree"),  # falls back
+        (NormalEstimator("pca", radius=0.05, k=30, neighbours="window", device="cpu"), (HEIGHT, WIDTH), "window"),
+    ]
+    for estimator, shape, search in cases:
+        estimator.estimate(points, shape=shape)
+        assert estimator.last_run.search == search, (estimator.k, estimator.neighbours, shape)
+    assert NormalEstimator("pca").k == PCA_DEFAULT_K
+
+
+def test_query_rows_equal_the_whole_images_rows() -> None:
+    depth = plane_depth(np.array([0.1, 0.0, -1.0]) / np.linalg.norm([0.1, 0.0, -1.0]), -1.2)
+    depth += np.random.default_rng(3).normal(scale=0.002, size=depth.shape)
+    points = pinhole(depth)
+    estimator = NormalEstimator("pca", radius=0.06)
+    normals, curvature = estimator.estimate(points, shape=(HEIGHT, WIDTH))
+    query = np.arange(5, len(points), 13)
+    some_normals, some_curvature = estimator.estimate(points, query, shape=(HEIGHT, WIDTH))
+    np.testing.assert_array_equal(some_normals, normals[query])
+    np.testing.assert_array_equal(some_curvature, curvature[query])
+
+
+def test_the_search_a_gpu_would_take_runs_on_cpu_tensors() -> None:
+    """'auto' on CUDA walks an organized cloud's pixel grid and an unorganized one's cell lists, and hybrid surveys an
+    organized cloud by window and takes its gated pools from the grid; the same searches on CPU tensors must give the
+    exact normals of a ridge far from its crease, so what a GPU runs is tested on any machine."""
+    assert search_choice("auto", "cuda", organized=True) == "grid"
+    assert search_choice("auto", "cuda", organized=False) == "voxel"
+    assert search_choice("auto", "cpu", organized=True) == "kdtree"
+    assert search_choice("window", "cpu", organized=True) == "grid"  # hybrid's gated pools under 'window'
+    depth, exact = fold_depth()
+    points = pinhole(depth)
+    away = (np.abs(np.mgrid[0:HEIGHT, 0:WIDTH][1] - WIDTH / 2) > 12).reshape(-1)
+    for organized in (True, False):
+        search = search_choice("auto", "cuda", organized)
+        estimator = NormalEstimator("learned", radius=0.25, neighbours=search, device="cpu", checkpoint="lite")
+        shape = (HEIGHT, WIDTH) if organized else None
+        query = np.flatnonzero(away)[::17]
+        normals, _ = estimator.estimate(points, query, shape=shape)
+        assert estimator.last_run.search == search
+        assert np.median(angle_error(normals, exact[query])) < 2.0
+    hybrid = NormalEstimator("hybrid", radius=0.25, neighbours="window", device="cpu", checkpoint="lite")
+    normals, _ = hybrid.estimate(points, shape=(HEIGHT, WIDTH))
+    assert hybrid.last_run.search == "window" and hybrid.last_run.network > 0
+    assert angle_error(normals[away], exact[away]).max() < 1e-3
+
+
+@pytest.mark.slow
+def test_depth_frames_window_is_at_least_as_accurate_as_the_nearest_30() -> None:
+    """On simulated Kinect frames with exact normals (seeds eval does not score), the window PCA at 5 cm is no worse
+    than PCA over the nearest 30 (Open3D's usual setting), and misses almost no point the KD-tree answers."""
+    from triplet_normal_ros.simulation.depth_camera import depth_frame
+
+    for seed in (100, 101):
+        frame = depth_frame(seed)
+        points, exact = frame.points.reshape(-1, 3), frame.normals.reshape(-1, 3)
+        valid = np.isfinite(points).all(axis=1)
+        window, _ = NormalEstimator("pca", radius=DEPTH_RADIUS).estimate(points, shape=frame.points.shape[:2])
+        nearest, _ = NormalEstimator("pca", radius=DEPTH_RADIUS, k=30).estimate(points)
+        assert msae(window[valid], exact[valid]) <= msae(nearest[valid], exact[valid]) * 1.01, seed
+        assert np.isnan(window[valid, 0]).mean() < 0.01
+
+
+@pytest.mark.slow
+def test_lidar_range_images_take_per_axis_windows() -> None:
+    """Rows are beams 1.3° apart, columns 0.2°: the measured spacings differ per axis, and the window PCA on the range
+    image stays within 30 % of the KD-tree's PCA at the same radius."""
+    from triplet_normal_ros.simulation.lidar import lidar_scan
+
+    frame = lidar_scan(100)
+    shape = frame.points.shape[:2]
+    points, exact = frame.points.reshape(-1, 3), frame.normals.reshape(-1, 3)
+    image = integral.MomentImage(torch.from_numpy(points.astype(np.float64)), shape)
+    assert image.pitch_row.median() > 5 * image.pitch_col.median()
+    valid = np.isfinite(points).all(axis=1)
+    window, _ = NormalEstimator("pca", radius=LIDAR_RADIUS).estimate(points, shape=shape)
+    nearest, _ = NormalEstimator("pca", radius=LIDAR_RADIUS, k=PCA_DEFAULT_K, neighbours="kdtree").estimate(points)
+    assert msae(window[valid], exact[valid]) < 1.3 * msae(nearest[valid], exact[valid])
+
+
+def noisy_wall(sigma: float, seed: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """A wall facing the camera 4 m away, each depth off by N(0, sigma) along its ray, as a depth camera's is."""
+    normal = np.array([0.1, 0.05, -1.0]) / np.linalg.norm([0.1, 0.05, -1.0])
+    depth = plane_depth(normal, -4.0)
+    depth = depth + np.random.default_rng(seed).normal(scale=sigma, size=depth.shape)
+    return pinhole(depth), normal
+
+
+def test_the_ray_noise_plane_is_exact_without_noise_and_holds_where_pca_tips_over() -> None:
+    points, normal = noisy_wall(0.0)
+    image = integral.MomentImage(torch.from_numpy(points), (HEIGHT, WIDTH))
+    fit = image.pca(0.2)
+    exact = np.tile(normal, (len(points), 1))
+    assert angle_error(integral.ray_noise_normal(fit).numpy(), exact).max() < 1e-4
+    points, normal = noisy_wall(0.1)  # range noise rivals the window's extent: PCA's smallest axis is a guess
+    image = integral.MomentImage(torch.from_numpy(points), (HEIGHT, WIDTH))
+    fit = image.pca(0.3)
+    valid = fit.valid.numpy()
+    assert valid.mean() > 0.95
+    pca_error = np.median(angle_error(fit.normal.numpy()[valid], exact[valid]))
+    ray_error = np.median(angle_error(integral.ray_noise_normal(fit).numpy()[valid], exact[valid]))
+    assert pca_error > 30 and ray_error < pca_error / 2.5
+
+
+def fold_depth() -> tuple[np.ndarray, np.ndarray]:
+    """A roof ridge facing the camera: two planes meeting along the middle column, depth continuous across it."""
+    left = np.array([-0.5, 0.0, -1.0]) / np.linalg.norm([-0.5, 0.0, -1.0])
+    right = np.array([0.5, 0.0, -1.0]) / np.linalg.norm([0.5, 0.0, -1.0])
+    depth = np.minimum(plane_depth(left, -2.0), plane_depth(right, -2.0))
+    u = np.mgrid[0:HEIGHT, 0:WIDTH][1]
+    exact = np.where((u < WIDTH / 2).reshape(-1, 1), right, left)  # the nearer plane is the one seen
+    return depth, exact
+
+
+def test_the_window_cue_is_quiet_on_a_noisy_plane_and_fires_at_a_fold() -> None:
+    points, _ = noisy_wall(0.01)
+    image = integral.MomentImage(torch.from_numpy(points), (HEIGHT, WIDTH))
+    cue = image.structure(image.pca(0.2), 0.2)
+    assert np.quantile(cue.z.numpy(), 0.99) < 5.0
+    depth, _ = fold_depth()
+    points = pinhole(depth)
+    image = integral.MomentImage(torch.from_numpy(points), (HEIGHT, WIDTH))
+    cue = image.structure(image.pca(0.1), 0.1)
+    ridge = cue.bend.numpy().reshape(HEIGHT, WIDTH)[10:-10, WIDTH // 2 - 2 : WIDTH // 2 + 2]
+    far = cue.bend.numpy().reshape(HEIGHT, WIDTH)[10:-10, :10]
+    assert ridge.min() > 0.05 and far.max() < 1e-6
+
+
+def test_hybrid_on_an_organized_cloud_surveys_by_window_and_sends_only_the_fold_to_the_network() -> None:
+    depth, exact = fold_depth()
+    points = pinhole(depth)
+    estimator = NormalEstimator("hybrid", radius=0.25, checkpoint="lite", device="cpu")
+    normals, curvature = estimator.estimate(points, shape=(HEIGHT, WIDTH))
+    run = estimator.last_run
+    assert run.search == "window" and 0 < run.network < 0.5 * run.estimated
+    error = angle_error(normals, exact).reshape(HEIGHT, WIDTH)
+    assert np.isfinite(curvature).all()
+    assert error[:, :8].max() < 1e-3 and error[:, -8:].max() < 1e-3  # far from the ridge: the survey, exact
+    unorganized = NormalEstimator("hybrid", radius=0.25, checkpoint="lite", device="cpu")
+    unorganized.estimate(points, np.arange(0, len(points), 97))
+    assert unorganized.last_run.search == "kdtree"

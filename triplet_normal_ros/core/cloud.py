@@ -1,0 +1,66 @@
+"""The per-cloud step: one whole cloud in, one normal and curvature per point out, oriented.
+
+The node and `triplet-normal bag` both call `estimate_cloud`, so a cloud gets the same answer from each: which points
+count, the empty and all-hole shortcuts, the estimate itself, and the viewpoint flip live here once.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import EstimatorError
+from .estimator import NormalEstimator
+from .orientation import orient_towards_viewpoint
+
+
+@dataclass(frozen=True)
+class CloudNormals:
+    """One row per input point: unit normals (N, 3) and PCL curvature (N,), float32, NaN where unknown."""
+
+    normals: np.ndarray
+    curvature: np.ndarray
+
+    @property
+    def known(self) -> int:
+        """How many points got a normal."""
+        return int(np.isfinite(self.curvature).sum())
+
+
+def estimate_cloud(
+    estimator: NormalEstimator,
+    points: np.ndarray,
+    *,
+    shape: tuple[int, int] | None = None,
+    valid: np.ndarray | None = None,
+    viewpoint: Sequence[float] | None = (0.0, 0.0, 0.0),
+    cancel: threading.Event | None = None,
+) -> CloudNormals:
+    """Normals and curvature for every point of `points` (N, 3); NaN rows where no normal can be trusted.
+
+    `shape` = (height, width) marks an organized cloud (rows of a depth image or of a LiDAR's beams), which lets the
+    estimator use its pixel grid. `valid` (N,) bool, when given, excludes points that are neither neighbours nor
+    queries (they get NaN), on top of the non-finite ones. `viewpoint` is where normals face (PCL's
+    flipNormalTowardsViewpoint); None leaves the signs as estimated. A set `cancel` stops between batches with
+    `EstimationCancelled`.
+    """
+    points = np.asarray(points)
+    if valid is not None:
+        valid = np.asarray(valid)
+        if valid.shape != points.shape[:1] or valid.dtype != bool:
+            raise EstimatorError(f"valid must be an ({len(points)},) bool mask, got {valid.dtype} {valid.shape}")
+        points = np.where(valid[:, None], points, np.nan)
+    if len(points) == 0 or not np.isfinite(points).all(axis=1).any():
+        return _unknown(len(points))
+    normals, curvature = estimator.estimate(points, cancel=cancel, shape=shape)
+    if viewpoint is not None:
+        normals = orient_towards_viewpoint(points, normals, viewpoint)
+    return CloudNormals(normals, curvature)
+
+
+def _unknown(n: int) -> CloudNormals:
+    """An answer of NaN rows: the cloud holds no point a normal could be estimated at (no search, no device work)."""
+    return CloudNormals(np.full((n, 3), np.nan, np.float32), np.full(n, np.nan, np.float32))

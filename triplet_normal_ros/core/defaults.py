@@ -1,0 +1,34 @@
+"""The node's defaults, defined once: the node's parameters and `triplet-normal bag` start from these, so a bag
+processed offline gets what the node would have published, and `config/params.yaml` is checked against them.
+
+Pure Python (no torch): the CLI reads them to build `--help`.
+"""
+
+from .conventions import DEPTH_RADIUS, HYBRID_BEND, HYBRID_GATE
+
+#: The estimator the node runs unless told otherwise: PCA everywhere, the network near edges and folds.
+METHOD = "hybrid"
+#: "" means the shipped checkpoint for the device that runs the network (`shipped_checkpoint`).
+CHECKPOINT = ""
+#: Which shipped checkpoint CHECKPOINT stands for, by device type: the default where a GPU runs the network; lite on a
+#: CPU, where the default's network and plane fits cost about four times lite's for 1.15 × its error on simulated
+#: depth frames (docs/RESULTS.md, "Organized clouds"), so a frame is answered in seconds rather than a quarter minute.
+SHIPPED_FOR_DEVICE = {"cuda": "default", "cpu": "lite"}
+DEVICE = "auto"
+#: Patches per forward pass; also bounds the cancel latency on a CPU.
+BATCH_SIZE = 256
+#: The ball radius in metres: what depth-camera pipelines use, and what training and evaluation score at.
+RADIUS = DEPTH_RADIUS
+#: 0 means the method's default: the checkpoint's k for the network methods, PCA_DEFAULT_K for pca.
+K = 0
+GATE = HYBRID_GATE
+BEND = HYBRID_BEND
+NEIGHBOURS = "auto"
+#: Normals face the viewpoint (PCL's flipNormalTowardsViewpoint); the origin of the cloud's frame is the sensor.
+ORIENT = True
+VIEWPOINT = (0.0, 0.0, 0.0)
+
+
+def shipped_checkpoint(device_type: str) -> str:
+    """The shipped checkpoint an empty `checkpoint` means on a device of `device_type` ('cpu', 'cuda')."""
+    return SHIPPED_FOR_DEVICE.get(device_type, "default")

@@ -1,0 +1,389 @@
+"""PCA of organized clouds in O(1) per pixel: summed-area tables of the first and second moments.
+
+A depth image or a LiDAR range image keeps its points in sensor order, so a metric ball around a pixel is, to first
+order, a pixel window whose half-widths are the ball's angular radius (r / range) over the image's angular spacing per
+axis. Summed-area tables (integral images) of 1, x, y, z and the six products give any window's count, mean and
+covariance in a few dozen operations, whatever its size, and a closed-form 3×3 eigensolver gives the normal: PCL's
+IntegralImageNormalEstimation (COVARIANCE_MATRIX mode), in torch so a GPU runs the same code.
+
+Windows never cross a depth discontinuity. Between two valid pixels of a row (or column) whose ranges jump by more
+than the jump threshold, across any holes between them, stands a wall; each pixel takes the largest window (scaled
+down from the full one) that no wall crosses, and where that is smaller than the full window, also tries one-sided
+windows (halves and quarters) and keeps the fullest. PCL shrinks a centred window to the distance to the nearest edge,
+which leaves the pixels beside an edge with almost no neighbours; the one-sided windows keep them a full half or quarter
+of the ball on their own surface.
+
+Everything runs in float64: window covariances are differences of sums over up to hundreds of thousands of pixels, and
+the coordinates are first centred on the cloud's mean so the cancellation costs only a few digits.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import torch
+
+from .conventions import MIN_NEIGHBOURS
+from .organized import ray_pitch
+
+#: A square window of half-width h covers the area of a disc of radius h × 2 / sqrt(pi); windows are sized to the
+#: ball's disc by area, so a plane gets about as many points as the ball would give it.
+AREA_MATCH = math.sqrt(math.pi) / 2
+#: Two adjacent pixels belong to different surfaces when their ranges differ by more than this fraction of the radius
+#: (a ball around one holds no point of the other) ...
+JUMP_RADIUS_FRACTION = 1.0
+#: ... or, when larger, by more than this fraction of the range (twice PCL's default depth-change factor), which keeps
+#: the range noise of a far surface (centimetres at 4 m for a Kinect) from reading as walls. Measured on simulated
+#: depth frames of seeds eval does not score: 0.02 shrank most far windows to a few pixels (MSAE 0.141 against 0.055).
+JUMP_RANGE_FRACTION = 0.04
+#: How many steps a window shrinks in while a wall crosses it (a binary search over these levels).
+SHRINK_LEVELS = 16
+#: The one-sided windows a pixel beside a wall also tries, as (up, down, left, right) reach: four half windows, then
+#: four quarter windows for the corners of a silhouette.
+ONE_SIDED = (
+    (1, 0, 1, 1), (0, 1, 1, 1), (1, 1, 1, 0), (1, 1, 0, 1),
+    (1, 0, 1, 0), (1, 0, 0, 1), (0, 1, 1, 0), (0, 1, 0, 1),
+)  # fmt: skip
+#: Channels of the summed-area table: count, x, y, z, xx, xy, xz, yy, yz, zz.
+_CHANNELS = 10
+
+
+@dataclass(frozen=True)
+class WindowPCA:
+    """Per pixel (flattened, H·W): the normal (smallest principal axis), ascending eigenvalues, window count, and
+    whether the window held at least MIN_NEIGHBOURS valid points. Rows that are not `valid` carry garbage."""
+
+    normal: torch.Tensor  # (N, 3) float64
+    eigvals: torch.Tensor  # (N, 3) float64, ascending
+    count: torch.Tensor  # (N,) float64
+    valid: torch.Tensor  # (N,) bool
+    mean: torch.Tensor  # (N, 3) float64: the window's centroid (cloud coordinates)
+    cov: torch.Tensor  # (N, 6) float64: the covariance's upper triangle (a00, a01, a02, a11, a12, a22)
+    box: tuple[torch.Tensor, ...]  # (top, bottom, left, right) (N,) each: the window each pixel used
+
+
+class Structure(NamedTuple):
+    """How far each window departs from its own PCA plane, measured by the centroids of its parts (`structure`)."""
+
+    #: Largest |height| of a part's centroid above the window's plane over the part's noise standard error: is the
+    #: departure significant? About 1-3 on any plane, whatever its noise; large across a fold or an edge.
+    z: torch.Tensor
+    #: That largest height in units of the radius: is the departure large?
+    bend: torch.Tensor
+
+
+class MomentImage:
+    """Summed-area tables of an organized cloud's moments, and the windows each pixel may use.
+
+    `cloud` (H·W, 3) on the device, NaN where there is no point; `shape` = (H, W). The angular spacing of each pixel
+    row and column is measured from the data (`organized.ray_pitch`, as the pixel-grid search measures it), so depth
+    cameras of any intrinsics and range images of any LiDAR work without calibration; a cloud that is not a range
+    image in its sensor's frame is not `usable`.
+    """
+
+    def __init__(self, cloud: torch.Tensor, shape: tuple[int, int]) -> None:
+        self.height, self.width = shape
+        self.device = cloud.device
+        points = cloud.to(torch.float64).view(self.height, self.width, 3)
+        self.finite = torch.isfinite(points).all(dim=-1)
+        self.range = torch.where(self.finite, points.norm(dim=-1), torch.nan)
+        self.offset = points[self.finite].mean(dim=0) if bool(self.finite.any()) else points.new_zeros(3)
+        self.points = torch.where(self.finite.unsqueeze(-1), points - self.offset, 0.0)
+        self.pitch_row, self.pitch_col = ray_pitch(points, 0), ray_pitch(points, 1)
+        self.table = _summed_area(self._moments())
+        self.counts = self.table[..., :1].contiguous()
+        self.first = self.table[..., :4].contiguous()  # count and sums of x, y, z: what a part's centroid needs
+
+    @property
+    def usable(self) -> bool:
+        """Whether the cloud looks like a range image in its sensor's frame (see `organized.MAX_PITCH_SPREAD`)."""
+        return self.pitch_row is not None and self.pitch_col is not None
+
+    def _moments(self) -> torch.Tensor:
+        x, y, z = self.points.unbind(dim=-1)
+        one = self.finite.to(torch.float64)
+        return torch.stack((one, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z), dim=-1)
+
+    def pca(self, radius: float) -> WindowPCA:
+        """Window PCA of every pixel at the metric `radius`, with windows that cross no depth discontinuity."""
+        half_row, half_col = self._half_widths(radius)
+        walls = _WallTable(self.range, _jump_threshold(self.range, radius))
+        box = _largest_clear_boxes(half_row, half_col, walls, self.height, self.width)
+        box = _one_sided_where_shrunk(box, half_row, half_col, walls, self.counts, self.height, self.width)
+        sums = _box_sums(self.table, *box)
+        return _window_pca(sums, self.offset, box)
+
+    def structure(self, fit: WindowPCA, radius: float, normal: torch.Tensor | None = None) -> Structure:
+        """The O(1) cue of hybrid's gate: where a quadric would beat the plane, parts of the window sit off it.
+
+        Each window is cut into five parts (its upper, lower, left and right halves, and its central quarter). On a
+        plane every part's centroid lies on the window's PCA plane up to noise; across a fold or an edge the halves
+        on either side and the centre sit above or below it by a fraction of the radius. The heights come from the
+        first-moment sums of the parts, so the cue costs five box lookups per pixel, not a neighbourhood. Heights run
+        along `normal` (default: PCA's), the noise is the window's variance along it; pass the survey's normal, or a
+        noise-dominated window measures its heights along whichever in-plane axis PCA mistook for the normal."""
+        top, bottom, left, right = fit.box
+        mid_row, mid_col = (
+            torch.div(top + bottom, 2, rounding_mode="floor"),
+            torch.div(left + right, 2, rounding_mode="floor"),
+        )
+        quarter_row = torch.div(bottom - top + 2, 4, rounding_mode="floor")
+        quarter_col = torch.div(right - left + 2, 4, rounding_mode="floor")
+        parts = (
+            (top, mid_row, left, right),
+            (mid_row + 1, bottom, left, right),
+            (top, bottom, left, mid_col),
+            (top, bottom, mid_col + 1, right),
+            (mid_row - quarter_row + 1, mid_row + quarter_row, mid_col - quarter_col + 1, mid_col + quarter_col),
+        )
+        first = self.first
+        normal = fit.normal if normal is None else normal
+        a00, a01, a02, a11, a12, a22 = fit.cov.unbind(dim=-1)
+        nx, ny, nz = normal.unbind(dim=-1)
+        noise = (
+            a00 * nx * nx + a11 * ny * ny + a22 * nz * nz + 2 * (a01 * nx * ny + a02 * nx * nz + a12 * ny * nz)
+        ).clamp_min(0)
+        z = torch.zeros_like(fit.count)
+        bend = torch.zeros_like(fit.count)
+        centroid = fit.mean - self.offset
+        for part in parts:
+            part = tuple(
+                torch.minimum(torch.maximum(b, lo), hi)
+                for b, lo, hi in zip(part, (top, top, left, left), (bottom, bottom, right, right), strict=True)
+            )
+            sums = _box_sums(first, *part)
+            n = sums[:, 0]
+            height = ((sums[:, 1:] / n.clamp_min(1).unsqueeze(-1) - centroid) * normal).sum(dim=-1).abs()
+            spread = torch.sqrt(noise * (1 / n.clamp_min(1) - 1 / fit.count.clamp_min(1)).clamp_min(0))
+            ok = (n >= MIN_NEIGHBOURS) & (n < fit.count)
+            z = torch.where(ok, torch.maximum(z, height / spread.clamp_min(1e-12)), z)
+            bend = torch.where(ok, torch.maximum(bend, height / radius), bend)
+        return Structure(z, bend)
+
+    def _half_widths(self, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """Half-widths in pixels per axis: the ball's angular radius over each axis' angular step (0 for holes)."""
+        angle = torch.asin((radius / self.range).clamp(max=1.0)) * AREA_MATCH
+        per_row = self.pitch_row.to(angle.dtype).view(-1, 1)
+        per_col = self.pitch_col.to(angle.dtype).view(1, -1)
+        rows = torch.nan_to_num(torch.round(angle / per_row), nan=0.0).clamp(0, float(self.height))
+        cols = torch.nan_to_num(torch.round(angle / per_col), nan=0.0).clamp(0, float(self.width))
+        return rows.to(torch.int64), cols.to(torch.int64)
+
+
+def _summed_area(channels: torch.Tensor) -> torch.Tensor:
+    """(H, W, C) -> (H+1, W+1, C) inclusive prefix sums with a zero first row and column, channels last so that one
+    box corner's channels are one contiguous read."""
+    h, w, c = channels.shape
+    table = channels.new_zeros((h + 1, w + 1, c))
+    torch.cumsum(channels, dim=0, out=table[1:, 1:])
+    table[1:, 1:].copy_(table[1:, 1:].cumsum(dim=1))
+    return table
+
+
+def _box_sums(table: torch.Tensor, top: torch.Tensor, bottom: torch.Tensor, left: torch.Tensor, right: torch.Tensor):
+    """Sums of every channel over the inclusive boxes [top, bottom] × [left, right], one per row: (M, C)."""
+    width = table.shape[1]
+    flat = table.view(-1, table.shape[2])
+    below, after = (bottom + 1) * width, right + 1
+    above = top * width
+    return flat[below + after] - flat[above + after] - flat[below + left] + flat[above + left]
+
+
+class _WallTable:
+    """Where the surface jumps in range along a row or a column: vertical walls (between columns) and horizontal walls
+    (between rows), as summed-area tables, so whether a box is crossed by any wall is O(1).
+
+    Each valid pixel is compared with the next valid pixel along the axis, across any run of holes between them (a
+    depth camera's shadow beside a foreground edge is such a run), and the wall stands right after the first one, so a
+    window may reach into the holes on its own side but not through them to the other surface.
+    """
+
+    def __init__(self, ranges: torch.Tensor, threshold: torch.Tensor) -> None:
+        self.cols = _summed_area(_jumps(ranges, threshold).unsqueeze(-1))  # (H+1, W, 1): walls after column c
+        self.rows = _summed_area(_jumps(ranges.T, threshold.T).T.unsqueeze(-1))  # (H, W+1, 1): walls after row r
+
+    def crossed(self, top, bottom, left, right) -> torch.Tensor:
+        """Whether any wall lies strictly inside each box (walls on its border separate it from the outside)."""
+        last_col, last_row = self.cols.shape[1] - 2, self.rows.shape[0] - 2  # the last wall index on each axis
+        wide, tall = right > left, bottom > top
+        lo_c = left.clamp(0, max(last_col, 0))
+        hi_c = torch.maximum((right - 1).clamp(0, max(last_col, 0)), lo_c)
+        lo_r = top.clamp(0, max(last_row, 0))
+        hi_r = torch.maximum((bottom - 1).clamp(0, max(last_row, 0)), lo_r)
+        inner_cols = _box_sums(self.cols, top, bottom, lo_c, hi_c)[:, 0] * wide
+        inner_rows = _box_sums(self.rows, lo_r, hi_r, left, right)[:, 0] * tall
+        return (inner_cols + inner_rows) > 0.5
+
+
+def _jumps(ranges: torch.Tensor, threshold: torch.Tensor) -> torch.Tensor:
+    """(H, W-1) float: 1 between columns c and c+1 where the valid pixel at c and the next valid pixel of its row (at
+    c+1 or beyond a run of holes) differ in range by more than either one's threshold."""
+    height, width = ranges.shape
+    finite = torch.isfinite(ranges)
+    index = torch.arange(width, device=ranges.device).expand(height, width)
+    at_or_after = torch.where(finite, index, width).flip(1).cummin(dim=1).values.flip(1)
+    following = torch.cat((at_or_after[:, 1:], at_or_after.new_full((height, 1), width)), dim=1)
+    has_next = finite & (following < width)
+    nxt = following.clamp_max(width - 1)
+    other, other_threshold = ranges.gather(1, nxt), threshold.gather(1, nxt)
+    jump = has_next & ((ranges - other).abs() > torch.maximum(threshold, other_threshold))
+    return jump[:, :-1].to(torch.float64)
+
+
+def _jump_threshold(ranges: torch.Tensor, radius: float) -> torch.Tensor:
+    return torch.clamp(ranges * JUMP_RANGE_FRACTION, min=radius * JUMP_RADIUS_FRACTION)
+
+
+def _pixel_grid(height: int, width: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    rows = torch.arange(height, device=device).view(-1, 1).expand(height, width).reshape(-1)
+    cols = torch.arange(width, device=device).view(1, -1).expand(height, width).reshape(-1)
+    return rows, cols
+
+
+def _clip(row, col, up, down, left, right, height: int, width: int):
+    return (
+        (row - up).clamp_min(0),
+        (row + down).clamp_max(height - 1),
+        (col - left).clamp_min(0),
+        (col + right).clamp_max(width - 1),
+    )
+
+
+def _box_at(row, col, half_row, half_col, sides, level, height: int, width: int):
+    """The box (top, bottom, left, right) of each pixel at a shrink `level`; `sides` = (up, down, left, right)
+    multipliers (0 or 1) make it centred or one-sided."""
+    up, down, left, right = sides
+    hr = torch.div(half_row * level + SHRINK_LEVELS // 2, SHRINK_LEVELS, rounding_mode="floor")
+    hc = torch.div(half_col * level + SHRINK_LEVELS // 2, SHRINK_LEVELS, rounding_mode="floor")
+    return _clip(row, col, hr * up, hr * down, hc * left, hc * right, height, width)
+
+
+def _largest_clear(row, col, half_row, half_col, sides, walls: _WallTable, height: int, width: int):
+    """Per pixel, the box at the largest level in [0, SHRINK_LEVELS] that no wall crosses (level 0: the pixel alone),
+    and that level. Only the pixels whose full box is crossed pay for the binary search."""
+    level = torch.full_like(row, SHRINK_LEVELS)
+    crossed = torch.nonzero(walls.crossed(*_box_at(row, col, half_row, half_col, sides, level, height, width)))
+    todo = crossed.squeeze(1)
+    if len(todo):
+        args = (row[todo], col[todo], half_row[todo], half_col[todo], sides)
+        lo, hi = torch.zeros_like(todo), torch.full_like(todo, SHRINK_LEVELS)
+        # Invariant: the box at lo is clear (level 0 always is), the box at hi is crossed.
+        while bool((open_ := hi - lo > 1).any()):
+            mid = torch.div(lo + hi, 2, rounding_mode="floor")
+            ok = ~walls.crossed(*_box_at(*args, mid, height, width))
+            lo = torch.where(open_ & ok, mid, lo)
+            hi = torch.where(open_ & ~ok, mid, hi)
+        level[todo] = lo
+    return _box_at(row, col, half_row, half_col, sides, level, height, width), level
+
+
+def _largest_clear_boxes(half_row, half_col, walls: _WallTable, height: int, width: int):
+    """The centred box of each pixel, shrunk until no wall crosses it, and its level."""
+    row, col = _pixel_grid(height, width, half_row.device)
+    return _largest_clear(row, col, half_row.reshape(-1), half_col.reshape(-1), (1, 1, 1, 1), walls, height, width)
+
+
+def _one_sided_where_shrunk(box, half_row, half_col, walls: _WallTable, counts, height: int, width: int):
+    """Where a wall cut the centred box to less than half its reach, the fullest of it and the one-sided halves (each
+    shrunk likewise), and where every half was cut too (a silhouette's corner), the quarters as well."""
+    best, level = box
+    best = [b.clone() for b in best]
+    todo = torch.nonzero(level < SHRINK_LEVELS // 2).squeeze(1)
+    row, col = _pixel_grid(height, width, half_row.device)
+    for sides in (ONE_SIDED[:4], ONE_SIDED[4:]):
+        if len(todo) == 0:
+            break
+        args = (row[todo], col[todo], half_row.reshape(-1)[todo], half_col.reshape(-1)[todo])
+        tried = [_largest_clear(*args, side, walls, height, width) for side in sides]
+        candidates = [tuple(b[todo] for b in best)] + [box for box, _ in tried]
+        filled = torch.stack([_box_sums(counts, *c)[:, 0] for c in candidates])
+        choice = filled.argmax(dim=0)
+        for i, side in enumerate(zip(*candidates, strict=True)):
+            best[i][todo] = torch.stack(side).gather(0, choice.unsqueeze(0)).squeeze(0)
+        cut = torch.stack([lvl for _, lvl in tried]).amax(dim=0) < SHRINK_LEVELS // 2
+        todo = todo[cut]
+    return tuple(best)
+
+
+def _window_pca(sums: torch.Tensor, offset: torch.Tensor, box: tuple[torch.Tensor, ...]) -> WindowPCA:
+    """Mean, covariance and its closed-form eigen-decomposition from the 10 moment sums (M, 10) of each window."""
+    count = sums[:, 0]
+    moments = sums[:, 1:] / count.clamp_min(1.0).unsqueeze(-1)
+    mean, second = moments[:, :3], moments[:, 3:]
+    mx, my, mz = mean.unbind(dim=-1)
+    outer = torch.stack((mx * mx, mx * my, mx * mz, my * my, my * mz, mz * mz), dim=-1)
+    cov = second - outer
+    eigvals, normal = smallest_eigenvector(cov)
+    return WindowPCA(normal, eigvals, count, count >= MIN_NEIGHBOURS, mean + offset, cov, box)
+
+
+def ray_noise_normal(fit: WindowPCA) -> torch.Tensor:
+    """The plane normal that explains each window when its noise runs along the sensor's rays: adj(C) · ray.
+
+    A depth camera measures depth and a LiDAR range, so a point's error moves it along its own ray: the window's
+    covariance is the surface's (rank 2, null along the normal n) plus s² · ray rayᵀ. The smallest-eigenvector PCA
+    answer tilts toward the ray once s rivals the window's extent (a Kinect's 3 cm at 4 m in a 5 cm ball), but
+    C⁻¹ · ray is parallel to n whatever s is (Sherman-Morrison), and the adjugate gives that direction without a
+    division, also for a noise-free window (where C is singular and adj(C) · ray = λ1 λ2 (n · ray) n). The ray is the
+    window centroid's direction from the origin: organized clouds come in their sensor's frame.
+    """
+    a00, a01, a02, a11, a12, a22 = fit.cov.unbind(dim=-1)
+    rows = (
+        torch.stack((a11 * a22 - a12 * a12, a02 * a12 - a01 * a22, a01 * a12 - a02 * a11), dim=-1),
+        torch.stack((a02 * a12 - a01 * a22, a00 * a22 - a02 * a02, a01 * a02 - a00 * a12), dim=-1),
+        torch.stack((a01 * a12 - a02 * a11, a01 * a02 - a00 * a12, a00 * a11 - a01 * a01), dim=-1),
+    )
+    ray = torch.nn.functional.normalize(fit.mean, dim=-1)
+    normal = torch.stack([(row * ray).sum(dim=-1) for row in rows], dim=-1)
+    length = normal.norm(dim=-1, keepdim=True)
+    # adj(C) vanishes for collinear or coincident points, and its product for a window seen edge-on (n ⊥ ray): there
+    # the noise model says nothing and PCA's axis stands.
+    usable = length > 1e-12 * fit.eigvals[:, 2:].square()
+    return torch.where(usable, normal / length.clamp_min(1e-300), fit.normal)
+
+
+def smallest_eigenvector(cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Ascending eigenvalues (N, 3) and the unit eigenvector of the smallest (N, 3) of symmetric 3×3 matrices given as
+    their upper triangles (N, 6) = (a00, a01, a02, a11, a12, a22), in closed form.
+
+    The eigenvalues are the trigonometric roots of the characteristic cubic (Smith 1961), the eigenvector the largest
+    cross product of two rows of A - λ0 I (the rows span the plane it is normal to). Matrices are scaled by their
+    trace first, so the formulas see numbers near 1 at any range or radius.
+    """
+    scale = (cov[:, 0] + cov[:, 3] + cov[:, 5]).clamp_min(torch.finfo(cov.dtype).tiny)
+    a00, a01, a02, a11, a12, a22 = (cov / scale.unsqueeze(-1)).unbind(dim=-1)
+    q = (a00 + a11 + a22) / 3
+    off = a01 * a01 + a02 * a02 + a12 * a12
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p = torch.sqrt(((b00 * b00 + b11 * b11 + b22 * b22 + 2 * off) / 6).clamp_min(0))
+    safe_p = p.clamp_min(1e-30)
+    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)) / safe_p.pow(
+        3
+    )
+    phi = torch.acos((det / 2).clamp(-1.0, 1.0)) / 3
+    largest = q + 2 * p * torch.cos(phi)
+    smallest = q + 2 * p * torch.cos(phi + 2 * math.pi / 3)
+    middle = 3 * q - largest - smallest
+    eigvals = torch.stack((smallest, middle, largest), dim=-1).clamp_min(0) * scale.unsqueeze(-1)
+    rows = torch.stack(
+        (
+            torch.stack((a00 - smallest, a01, a02), dim=-1),
+            torch.stack((a01, a11 - smallest, a12), dim=-1),
+            torch.stack((a02, a12, a22 - smallest), dim=-1),
+        ),
+        dim=1,
+    )
+    crosses = torch.stack(
+        (
+            torch.linalg.cross(rows[:, 0], rows[:, 1], dim=-1),
+            torch.linalg.cross(rows[:, 0], rows[:, 2], dim=-1),
+            torch.linalg.cross(rows[:, 1], rows[:, 2], dim=-1),
+        ),
+        dim=1,
+    )
+    norms = crosses.norm(dim=-1)
+    pick = norms.argmax(dim=1)
+    vector = crosses[torch.arange(len(pick), device=cov.device), pick]
+    return eigvals, torch.nn.functional.normalize(vector, dim=-1)
