@@ -320,7 +320,7 @@ def test_sigint_during_an_estimate_cancels_it_and_exits_cleanly(start_node, fram
 
 
 def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, install_prefix: Path, frame: Frame) -> None:
-    """The README's route: the installed config/params.yaml (hybrid, default checkpoint), best-effort input.
+    """The README's route: the installed config/params.yaml (hybrid, the shipped checkpoint), best-effort input.
 
     A small cloud gets through (resent while unanswered: best effort may lose it), then SIGTERM ends the node cleanly.
     """
