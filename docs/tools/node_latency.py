@@ -7,7 +7,7 @@ on a private localhost ROS graph with the shipped Fast DDS profile; this process
 answer. Then it times `NormalEstimator.estimate` with the same settings on the same points. The node's share is
 everything else: PointCloud2 decoding, orientation toward the sensor, building the answer, and DDS both ways.
 
-Run: .venv/bin/python docs/tools/node_latency.py   (about 5 minutes on 2 quiet CPU cores, after `make demo`)
+Run: .venv/bin/python docs/tools/node_latency.py   (about a minute on 2 quiet CPU cores, after `make demo`)
 """
 
 import argparse
@@ -19,6 +19,7 @@ import numpy as np
 
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.ros.node_process import node_env, params_file, start_node, stop_node, wait_for_node
+from triplet_normal_ros.ros.params import NodeSettings, apply
 from triplet_normal_ros.ros.replay import SENSOR_INPUT, ReplayClient, load_frame
 
 INPUT, OUTPUT = "/latency/points", "/latency/normals"
@@ -42,10 +43,10 @@ def round_trips(client: ReplayClient, frame, repeats: int) -> list[float]:
 
 
 def estimator_alone(frame, params: dict, repeats: int) -> list[float]:
-    k = params["k"] or None
-    estimator = NormalEstimator(params["method"], radius=RADIUS, k=k, device="cpu")
+    """The estimator the node builds from these parameters (its checkpoint for the device included), alone."""
+    estimator = NormalEstimator(**apply(NodeSettings(), {**params, "device": "cpu"}).estimator_args())
     points = frame.xyz.reshape(-1, 3).astype(np.float64)  # what read_xyz gives the node, as float64
-    estimator.estimate(points[:5000])  # warm-up, as the node's start-up probe is
+    estimator.estimate(points, shape=frame.shape)  # warm-up on the frame itself
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
@@ -64,7 +65,7 @@ def main() -> None:
     prefix, out = args.prefix.resolve(), args.out.resolve()
     env = node_env(prefix)
     os.environ.update({k: v for k, v in env.items() if k.startswith(("ROS_", "RCUTILS_"))})
-    first = params_file(out / "latency_params.yaml", {**RUNS[0][1], "stats_period": 30.0})
+    first = params_file(out / "latency_params.yaml", {**RUNS[0][1], "device": "cpu", "stats_period": 30.0})
     node = start_node(prefix, first, {"input": INPUT, "output": OUTPUT}, out / "node.log", env)
     rows = []
     try:
