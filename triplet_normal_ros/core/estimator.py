@@ -1,9 +1,11 @@
 """NormalEstimator: the one entry point that the node, the CLI, evaluation and the tests call.
 
-`estimate` builds a neighbour search once per cloud (the pixel grid of an organized cloud or sorted cell lists, both on
-the device, or a KD-tree on the CPU), then walks the query points in chunks: ball neighbourhoods, then PCA, patches +
-network, or both (hybrid: the network only where PCA's neighbourhood is not flat). Memory stays bounded by the chunk
-size.
+On an organized cloud `pca` at a whole-ball k, and `hybrid`'s survey, come from integral images of the moments, O(1)
+per pixel (`integral.py`); hybrid then gathers pools only where the window's parts sit off its plane. Otherwise
+`estimate` builds a neighbour search once per cloud (the pixel grid of an organized cloud or sorted cell lists, both
+on the device, or a KD-tree on the CPU), then walks the query points in chunks: ball neighbourhoods, then PCA, patches
++ network, or both (hybrid: the network only where a quadric beats the pool's plane). Memory stays bounded by the
+chunk size.
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ PART_SPAN = 3
 class RunInfo:
     """What the last `estimate` call did: which neighbour search, and how many points the network saw."""
 
-    search: str = "none"  # "grid" (organized pixel grid) | "voxel" (cell lists) | "kdtree" | "none"
+    search: str = "none"  # "window" (integral images) | "grid" (pixel grid) | "voxel" (cell lists) | "kdtree" | "none"
     estimated: int = 0  # finite query points
     network: int = 0  # of those, how many went through the network (all for learned, the gated ones for hybrid)
 

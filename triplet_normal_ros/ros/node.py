@@ -48,6 +48,8 @@ OUTPUT_DEPTH = 2
 THROTTLE_S = 5.0
 #: How long shutdown waits for the worker; the estimator checks its cancel event between batches.
 JOIN_TIMEOUT_S = 1.5
+#: How often the worker loop in the main thread looks at the stop event while no cloud waits.
+SERVE_POLL_S = 0.1
 
 _PARAM_TYPES = {
     str: Parameter.Type.STRING,
@@ -93,9 +95,13 @@ def _k(estimator: NormalEstimator, settings: NodeSettings) -> int:
 
 
 class TripletNormalNode(Node):
-    """Subscribes to ``input``, publishes ``output``; raises StartupError when it cannot run."""
+    """Subscribes to ``input``, publishes ``output``; raises StartupError when it cannot run.
 
-    def __init__(self, **kwargs: Any) -> None:
+    The worker runs in a thread of its own, or, with ``serve_in_caller``, in whoever calls `serve` (the console node
+    calls it from the process's main thread: torch's OpenMP teams are 25-30 % slower in a second thread).
+    """
+
+    def __init__(self, serve_in_caller: bool = False, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.get_logger().info(f"running triplet_normal_ros from {os.path.dirname(os.path.dirname(__file__))}")
         settings = self._declare_parameters()
@@ -124,8 +130,10 @@ class TripletNormalNode(Node):
         self._diagnostics = self.create_publisher(DiagnosticArray, diagnostics.TOPIC, diagnostics.DEPTH)
         self._diagnostic_name = diagnostics.status_name(self.get_fully_qualified_name())
         self._stats_timer = self.create_timer(settings.stats_period, self._report_stats)
-        self._worker = threading.Thread(target=self._work, name="triplet_normal_worker", daemon=True)
-        self._worker.start()
+        self._worker: threading.Thread | None = None
+        if not serve_in_caller:
+            self._worker = threading.Thread(target=self._work, name="triplet_normal_worker", daemon=True)
+            self._worker.start()
         self.get_logger().info(
             f"ready: {self._subscription.topic_name} -> {self._publisher.topic_name}, {self._describe(*self._active)}"
         )
@@ -191,21 +199,38 @@ class TripletNormalNode(Node):
     # -- worker -----------------------------------------------------------------------------------------------------
 
     def _work(self) -> None:
-        """Take the newest cloud, estimate, publish; bad clouds are logged and skipped, never fatal."""
-        log = self.get_logger()
+        """The worker thread: take the newest cloud, estimate, publish, until the mailbox closes."""
         while (msg := self._mailbox.get()) is not None:
-            try:
-                self._process(msg)
-            except (CloudFormatError, EstimatorError) as error:
-                self._stats.reject(str(error))
-                log.error(f"skipped a malformed cloud: {error}", throttle_duration_sec=THROTTLE_S)
-            except EstimationCancelled:
+            if not self._handle(msg):
                 return
-            except Exception as error:  # the worker must outlive any one cloud; shutdown races end here too
-                if self._cancel.is_set():
+
+    def serve(self, stop: threading.Event) -> None:
+        """The worker loop in the calling thread, until `stop` is set or the node stops (`serve_in_caller`)."""
+        while not stop.is_set():
+            msg = self._mailbox.get(timeout=SERVE_POLL_S)
+            if msg is None:
+                if self._mailbox.closed:
                     return
-                self._stats.reject(f"{type(error).__name__}: {error}")
-                log.error(f"failed on a cloud: {type(error).__name__}: {error}", throttle_duration_sec=THROTTLE_S)
+                continue
+            if not self._handle(msg):
+                return
+
+    def _handle(self, msg: PointCloud2) -> bool:
+        """Estimate and publish one cloud; bad clouds are logged and skipped, never fatal. False once stopping."""
+        log = self.get_logger()
+        try:
+            self._process(msg)
+        except (CloudFormatError, EstimatorError) as error:
+            self._stats.reject(str(error))
+            log.error(f"skipped a malformed cloud: {error}", throttle_duration_sec=THROTTLE_S)
+        except EstimationCancelled:
+            return False
+        except Exception as error:  # the worker must outlive any one cloud; shutdown races end here too
+            if self._cancel.is_set():
+                return False
+            self._stats.reject(f"{type(error).__name__}: {error}")
+            log.error(f"failed on a cloud: {type(error).__name__}: {error}", throttle_duration_sec=THROTTLE_S)
+        return True
 
     def _on_cloud(self, msg: PointCloud2) -> None:
         """Subscription callback: count the arrival (log the first one), leave the cloud for the worker."""
@@ -255,18 +280,50 @@ class TripletNormalNode(Node):
 
     # -- shutdown ---------------------------------------------------------------------------------------------------
 
+    def cancel(self) -> None:
+        """Ask the estimate in flight to stop at its next chunk: one Event.set, safe from a signal handler."""
+        self._cancel.set()
+
     def stop(self, timeout: float = JOIN_TIMEOUT_S) -> bool:
         """Cancel the estimate in flight, close the mailbox and join the worker; False if it did not finish in time."""
         self._cancel.set()
         self._mailbox.close()
+        if self._worker is None:  # served by the caller, who has returned from `serve`
+            return True
         self._worker.join(timeout)
         return not self._worker.is_alive()
 
 
-def _install_stop_handlers(stop: threading.Event) -> None:
-    """SIGINT and SIGTERM only set ``stop``: the spin loop notices within one spin timeout and shuts down in order."""
+def _install_stop_handlers(stop: threading.Event, node: TripletNormalNode | None = None) -> None:
+    """SIGINT and SIGTERM set ``stop`` and cancel the estimate in flight; the serving loop then ends at its next check,
+    and a watchdog leaves without it if it is still inside an uncancellable step after JOIN_TIMEOUT_S."""
+
+    def handler(*_: object) -> None:
+        stop.set()
+        if node is not None:
+            node.cancel()
+            _start_watchdog(node)
+
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, handler)
+
+
+#: The watchdog started by the first stop signal (at most one).
+_WATCHDOG: list[threading.Timer] = []
+
+
+def _start_watchdog(node: TripletNormalNode) -> None:
+    if not _WATCHDOG:
+        timer = threading.Timer(JOIN_TIMEOUT_S, _abandon, args=(node,))
+        timer.daemon = True
+        _WATCHDOG.append(timer)
+        timer.start()
+
+
+def _abandon(node: TripletNormalNode) -> None:
+    """The estimate did not reach a cancel check in time: say so and leave without waiting for it."""
+    node.get_logger().warning(f"worker still busy after {JOIN_TIMEOUT_S} s; exiting without waiting for it")
+    _exit_now(0)
 
 
 def _spin(node: TripletNormalNode, stop: threading.Event) -> None:
@@ -295,9 +352,13 @@ def _run(args: list[str] | None) -> int:
         return 1
     _log_transport(profile)
     node: TripletNormalNode | None = None
+    spinner: threading.Thread | None = None
     try:
-        node = TripletNormalNode()
-        _spin(node, stop)
+        node = TripletNormalNode(serve_in_caller=True)
+        _install_stop_handlers(stop, node)
+        spinner = threading.Thread(target=_spin, args=(node, stop), name="triplet_normal_executor", daemon=True)
+        spinner.start()
+        node.serve(stop)  # estimates in this, the main, thread until a signal
         return 0
     except StartupError as error:
         get_logger(NODE_NAME).fatal(f"cannot start: {error}")
@@ -306,6 +367,11 @@ def _run(args: list[str] | None) -> int:
         get_logger(NODE_NAME).fatal(f"cannot start: {error}")
         return 1
     finally:
+        stop.set()
+        for timer in _WATCHDOG:
+            timer.cancel()  # the loop has returned: what follows is the orderly shutdown
+        if spinner is not None:
+            spinner.join()
         if node is not None:
             _shut_down(node)
         rclpy.try_shutdown()
