@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.bags import InputBag
 
     _check(args)
-    if args.checkpoint is None:  # the node's rule for an empty checkpoint parameter
+    if args.checkpoint is None and args.method != "pca":  # the node's rule for an empty checkpoint parameter
         from ..core.device import device_type
 
         args.checkpoint = defaults.shipped_checkpoint(device_type(args.device))

@@ -224,7 +224,7 @@ class NormalEstimator:
     ) -> tuple[np.ndarray, np.ndarray]:
         """PCA of every pixel's window at once (see integral.py), then the query's rows."""
         fit = image.pca(self.radius)
-        self.last_run = RunInfo("window", int(image.finite.sum()))
+        self.last_run = RunInfo("window", int(image.finite.reshape(-1)[torch.from_numpy(query)].sum()))
         valid = fit.valid & image.finite.reshape(-1)
         normals, curvature = _finish(fit.normal, surface_variation(fit.eigvals), valid)
         if progress is not None:
@@ -254,7 +254,7 @@ class NormalEstimator:
             normals, curvature = normals[query], curvature[query]
             network = np.flatnonzero(gated.cpu().numpy()[query])
             pooled = np.flatnonzero(thin.cpu().numpy()[query])
-        self.last_run = RunInfo("window", int(np.isfinite(curvature).sum()))
+        self.last_run = RunInfo("window", int(finite.cpu().numpy()[query].sum()))
         if progress is not None:
             progress(len(query) - len(network) - len(pooled))
         if len(network) + len(pooled) == 0:

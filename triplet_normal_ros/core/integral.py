@@ -46,6 +46,9 @@ ONE_SIDED = (
     (1, 0, 1, 1), (0, 1, 1, 1), (1, 1, 1, 0), (1, 1, 0, 1),
     (1, 0, 1, 0), (1, 0, 0, 1), (0, 1, 1, 0), (0, 1, 0, 1),
 )  # fmt: skip
+#: Below this length (the matrix scaled to unit trace) the largest cross product of two rows of A - λ0 I says no
+#: plane: the smallest eigenvalue is repeated, and the eigenvector answer is NaN rather than an arbitrary axis.
+DEGENERATE_CROSS = 1e-10
 #: Channels of the summed-area table: count, x, y, z, xx, xy, xz, yy, yz, zz.
 _CHANNELS = 10
 
@@ -92,6 +95,8 @@ class MomentImage:
         self.offset = points[self.finite].mean(dim=0) if bool(self.finite.any()) else points.new_zeros(3)
         self.points = torch.where(self.finite.unsqueeze(-1), points - self.offset, 0.0)
         self.pitch_row, self.pitch_col = ray_pitch(points, 0), ray_pitch(points, 1)
+        if not self.usable:  # not a range image in its sensor's frame: the caller takes pools, so no tables
+            return
         self.table = _summed_area(self._moments())
         self.counts = self.table[..., :1].contiguous()
         self.first = self.table[..., :4].contiguous()  # count and sums of x, y, z: what a part's centroid needs
@@ -316,7 +321,8 @@ def _window_pca(sums: torch.Tensor, offset: torch.Tensor, box: tuple[torch.Tenso
     outer = torch.stack((mx * mx, mx * my, mx * mz, my * my, my * mz, mz * mz), dim=-1)
     cov = second - outer
     eigvals, normal = smallest_eigenvector(cov)
-    return WindowPCA(normal, eigvals, count, count >= MIN_NEIGHBOURS, mean + offset, cov, box)
+    valid = (count >= MIN_NEIGHBOURS) & torch.isfinite(normal).all(dim=-1)
+    return WindowPCA(normal, eigvals, count, valid, mean + offset, cov, box)
 
 
 def ray_noise_normal(fit: WindowPCA) -> torch.Tensor:
@@ -352,7 +358,7 @@ def smallest_eigenvector(cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]
     cross product of two rows of A - λ0 I (the rows span the plane it is normal to). Matrices are scaled by their
     trace first, so the formulas see numbers near 1 at any range or radius.
     """
-    scale = (cov[:, 0] + cov[:, 3] + cov[:, 5]).clamp_min(torch.finfo(cov.dtype).tiny)
+    scale = (cov[:, 0].abs() + cov[:, 3].abs() + cov[:, 5].abs()).clamp_min(torch.finfo(cov.dtype).tiny)
     a00, a01, a02, a11, a12, a22 = (cov / scale.unsqueeze(-1)).unbind(dim=-1)
     q = (a00 + a11 + a22) / 3
     off = a01 * a01 + a02 * a02 + a12 * a12
@@ -386,4 +392,7 @@ def smallest_eigenvector(cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]
     norms = crosses.norm(dim=-1)
     pick = norms.argmax(dim=1)
     vector = crosses[torch.arange(len(pick), device=cov.device), pick]
-    return eigvals, torch.nn.functional.normalize(vector, dim=-1)
+    length = norms.gather(1, pick.unsqueeze(1))
+    # No two rows of A - λ0 I span a plane when λ0 is repeated (a line, a point, an isotropic blob): no normal.
+    determined = length > DEGENERATE_CROSS
+    return eigvals, torch.where(determined, vector / length.clamp_min(torch.finfo(cov.dtype).tiny), torch.nan)

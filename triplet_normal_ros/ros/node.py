@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import sys
 import threading
 import time
@@ -50,6 +51,8 @@ THROTTLE_S = 5.0
 JOIN_TIMEOUT_S = 1.5
 #: How often the worker loop in the main thread looks at the stop event while no cloud waits.
 SERVE_POLL_S = 0.1
+#: How long shutdown waits for the executor thread (one spin timeout and its own shutdown, with room to spare).
+EXECUTOR_JOIN_S = 2.0
 
 _PARAM_TYPES = {
     str: Parameter.Type.STRING,
@@ -296,16 +299,31 @@ class TripletNormalNode(Node):
 
 def _install_stop_handlers(stop: threading.Event, node: TripletNormalNode | None = None) -> None:
     """SIGINT and SIGTERM set ``stop`` and cancel the estimate in flight; the serving loop then ends at its next check,
-    and a watchdog leaves without it if it is still inside an uncancellable step after JOIN_TIMEOUT_S."""
+    and a watchdog leaves without it if it is still inside an uncancellable step after JOIN_TIMEOUT_S.
 
-    def handler(*_: object) -> None:
+    Python runs a signal handler in the main thread between bytecodes, which is late when that thread is inside one
+    long torch or scipy call; so with a node, the signal also wakes a thread of its own (`signal.set_wakeup_fd`) that
+    acts at once."""
+
+    def on_stop() -> None:
         stop.set()
         if node is not None:
             node.cancel()
             _start_watchdog(node)
 
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, handler)
+        signal.signal(sig, lambda *_: on_stop())
+    if node is not None:
+        receiver, sender = socket.socketpair()
+        sender.setblocking(False)
+        signal.set_wakeup_fd(sender.fileno(), warn_on_full_buffer=False)
+        threading.Thread(target=_wake_on_signal, args=(receiver, on_stop, sender), daemon=True).start()
+
+
+def _wake_on_signal(receiver: socket.socket, on_stop, sender: socket.socket) -> None:
+    """Block until a signal's byte arrives on the wakeup socket, then stop (`sender` is kept open as long)."""
+    if receiver.recv(1):
+        on_stop()
 
 
 #: The watchdog started by the first stop signal (at most one).
@@ -326,13 +344,20 @@ def _abandon(node: TripletNormalNode) -> None:
     _exit_now(0)
 
 
-def _spin(node: TripletNormalNode, stop: threading.Event) -> None:
+def _spin(node: TripletNormalNode, stop: threading.Event, failed: list[BaseException]) -> None:
+    """The executor's loop (a thread of its own beside the serving main thread). If a callback raises, the node can no
+    longer hear anything: the error is logged, kept in `failed`, and the node stops."""
     executor = MultiThreadedExecutor(num_threads=2)
     executor.add_node(node)
     try:
         while not stop.is_set() and rclpy.ok():
             executor.spin_once(timeout_sec=0.1)
+    except Exception as error:
+        failed.append(error)
+        node.get_logger().fatal(f"the executor failed: {type(error).__name__}: {error}")
     finally:
+        stop.set()
+        node.cancel()
         executor.shutdown(timeout_sec=0.5)
 
 
@@ -353,13 +378,17 @@ def _run(args: list[str] | None) -> int:
     _log_transport(profile)
     node: TripletNormalNode | None = None
     spinner: threading.Thread | None = None
+    failed: list[BaseException] = []
     try:
         node = TripletNormalNode(serve_in_caller=True)
         _install_stop_handlers(stop, node)
-        spinner = threading.Thread(target=_spin, args=(node, stop), name="triplet_normal_executor", daemon=True)
+        spinner = threading.Thread(
+            target=_spin, args=(node, stop, failed), name="triplet_normal_executor", daemon=True
+        )
         spinner.start()
         node.serve(stop)  # estimates in this, the main, thread until a signal
-        return 0
+        spinner.join(EXECUTOR_JOIN_S)
+        return 1 if failed else 0
     except StartupError as error:
         get_logger(NODE_NAME).fatal(f"cannot start: {error}")
         return 1
@@ -371,7 +400,7 @@ def _run(args: list[str] | None) -> int:
         for timer in _WATCHDOG:
             timer.cancel()  # the loop has returned: what follows is the orderly shutdown
         if spinner is not None:
-            spinner.join()
+            spinner.join(EXECUTOR_JOIN_S)
         if node is not None:
             _shut_down(node)
         rclpy.try_shutdown()
