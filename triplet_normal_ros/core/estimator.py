@@ -182,10 +182,11 @@ class NormalEstimator:
         timings = {} if timings is None else timings
         cloud = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64)).to(self.device)
         if self._window_applies(shape, len(points)):
-            with _timed(timings, "pca"):
+            stage = "pca" if self.method == "pca" else "survey"
+            with _timed(timings, stage):
                 image = MomentImage(cloud, shape)
             if image.usable and self.method == "pca":
-                with _timed(timings, "pca"):
+                with _timed(timings, stage):
                     return self._window_estimate(image, query, progress)
             if image.usable:
                 return self._window_hybrid(image, points, cloud, shape, query, cancel, timings, progress)
@@ -198,6 +199,15 @@ class NormalEstimator:
             progress(len(query) - len(todo))
         chunk = PCA_CHUNK if self.method == "pca" else CHUNK
         run = {"pca": self._pca_chunk, "learned": self._learned_chunk, "hybrid": self._hybrid_chunk}[self.method]
+        for out, answer, answer_curvature in self._over_pools(search, cloud, query, todo, run, chunk, cancel, timings):
+            normals[out], curvature[out] = answer, answer_curvature
+            if progress is not None:
+                progress(len(out))
+        return normals, curvature
+
+    def _over_pools(self, search, cloud, query, todo, run, chunk, cancel, timings):
+        """For each chunk of the `todo` positions of `query`: (positions, normals, curvature) from `run` over the
+        chunk's pools; raises EstimationCancelled between chunks once `cancel` is set."""
         for lo in range(0, len(todo), chunk):
             if cancel is not None and cancel.is_set():
                 raise EstimationCancelled("estimation cancelled")
@@ -205,10 +215,7 @@ class NormalEstimator:
             rows = torch.from_numpy(query[out]).to(self.device)
             with _timed(timings, "neighbours"):
                 pool = search.pool(rows, self.radius, self._pool_size())
-            normals[out], curvature[out] = run(cloud, cloud[rows], pool, rows, cancel, timings)
-            if progress is not None:
-                progress(len(out))
-        return normals, curvature
+            yield (out, *run(cloud, cloud[rows], pool, rows, cancel, timings))
 
     def _window_applies(self, shape: tuple[int, int] | None, n: int) -> bool:
         """The integral-image path answers pca on an organized cloud when asked ('window'), and by default ('auto')
@@ -262,14 +269,8 @@ class NormalEstimator:
         with _timed(timings, "neighbours"):
             search = open_search(points, cloud, shape, self.neighbours, self.device)
         for todo, run in ((network, self._learned_chunk), (pooled, self._hybrid_chunk)):
-            for lo in range(0, len(todo), CHUNK):
-                if cancel is not None and cancel.is_set():
-                    raise EstimationCancelled("estimation cancelled")
-                out = todo[lo : lo + CHUNK]
-                rows = torch.from_numpy(query[out]).to(self.device)
-                with _timed(timings, "neighbours"):
-                    pool = search.pool(rows, self.radius, self._pool_size())
-                answer, pool_curvature = run(cloud, cloud[rows], pool, rows, cancel, timings)
+            chunks = self._over_pools(search, cloud, query, todo, run, CHUNK, cancel, timings)
+            for out, answer, pool_curvature in chunks:
                 answered = np.isfinite(answer).all(axis=1)
                 normals[out[answered]] = answer[answered]
                 if todo is pooled:  # a thin window's curvature is a sliver's; the pool's is the ball's

@@ -154,10 +154,8 @@ class MomentImage:
         bend = torch.zeros_like(fit.count)
         centroid = fit.mean - self.offset
         for part in parts:
-            part = tuple(
-                torch.minimum(torch.maximum(b, lo), hi)
-                for b, lo, hi in zip(part, (top, top, left, left), (bottom, bottom, right, right), strict=True)
-            )
+            lows, highs = (top, top, left, left), (bottom, bottom, right, right)
+            part = tuple(b.clamp(lo, hi) for b, lo, hi in zip(part, lows, highs, strict=True))
             sums = _box_sums(first, *part)
             n = sums[:, 0]
             height = ((sums[:, 1:] / n.clamp_min(1).unsqueeze(-1) - centroid) * normal).sum(dim=-1).abs()
