@@ -114,9 +114,11 @@ def installed_env(prefix: Path, ros_env: Mapping[str, str]) -> dict[str, str]:
     return env
 
 
-def params_yaml(path: Path, params: Mapping[str, Any], reliable_topics: tuple[str, ...] = ()) -> Path:
+def params_yaml(
+    path: Path, params: Mapping[str, Any], reliable_topics: tuple[str, ...] = (), depth: int | None = None
+) -> Path:
     """A ROS 2 parameter file for every node (``/**``); ``reliable_topics`` get a subscription QoS override."""
-    return params_file(path, params, reliable_topics)
+    return params_file(path, params, reliable_topics, depth)
 
 
 class NodeProcess:

@@ -25,7 +25,15 @@ from tqdm import tqdm
 
 from triplet_normal_ros.evaluation.report import update_section
 from triplet_normal_ros.ros.node_process import node_env, params_file, start_node, stop_node, wait_for_node
-from triplet_normal_ros.ros.overload import NODE_PARAMS, RSS_EVERY_S, OverloadClient, SoakResult, cloud_pool, soak
+from triplet_normal_ros.ros.overload import (
+    FLOOD_DEPTH,
+    NODE_PARAMS,
+    RSS_EVERY_S,
+    OverloadClient,
+    SoakResult,
+    cloud_pool,
+    soak,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -63,7 +71,7 @@ def timed_stop(node: subprocess.Popen) -> tuple[int | None, float]:
 def run(prefix: Path, folder: Path, seconds: float, rate: float) -> SoakResult:
     private_ros_env(folder)
     log = folder / "node.log"
-    params = params_file(folder / "params.yaml", NODE_PARAMS, reliable_topics=(IN,))
+    params = params_file(folder / "params.yaml", NODE_PARAMS, reliable_topics=(IN,), depth=FLOOD_DEPTH)
     node = start_node(prefix, params, {"input": IN, "output": OUT}, log, node_env(prefix))
     try:
         with OverloadClient(IN, OUT, cloud_pool()) as client:

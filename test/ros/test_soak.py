@@ -22,6 +22,7 @@ from sensor_msgs.msg import PointCloud2
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field, read_xyz
 from triplet_normal_ros.ros.overload import (
+    FLOOD_DEPTH,
     NODE_PARAMS,
     NodeTotals,
     OverloadClient,
@@ -96,7 +97,8 @@ class Outcome:
 def outcome(install_prefix, ros_env, tmp_path_factory) -> Outcome:
     """One flood for the module's checks: the figures are the product, each test reads one aspect of them."""
     folder = tmp_path_factory.mktemp("soak")
-    params = params_yaml(folder / "params.yaml", NODE_PARAMS, reliable_topics=(IN,))  # 2 MB clouds: see README, QoS
+    # 2 MB clouds, sent faster than they are answered: reliable and queued (README, QoS; overload.FLOOD_DEPTH)
+    params = params_yaml(folder / "params.yaml", NODE_PARAMS, reliable_topics=(IN,), depth=FLOOD_DEPTH)
     node = NodeProcess(
         install_prefix,
         installed_env(install_prefix, ros_env),

@@ -35,8 +35,11 @@ def node_env(prefix: Path) -> dict[str, str]:
     return env
 
 
-def params_file(path: Path, params: Mapping[str, object], reliable_topics: tuple[str, ...] = ()) -> Path:
-    """A parameter file for the node; `reliable_topics` get a reliable subscription QoS override.
+def params_file(
+    path: Path, params: Mapping[str, object], reliable_topics: tuple[str, ...] = (), depth: int | None = None
+) -> Path:
+    """A parameter file for the node; `reliable_topics` get a reliable subscription QoS override (and a history of
+    `depth` clouds, when given).
 
     Without an override full frames take the default, best-effort path (README, QoS), as from a camera driver; a
     tool that publishes faster than the node answers makes its input reliable so that what it sends arrives.
@@ -46,6 +49,7 @@ def params_file(path: Path, params: Mapping[str, object], reliable_topics: tuple
         lines.append("    qos_overrides:")
         for topic in reliable_topics:
             lines += [f"      {topic}:", "        subscription:", "          reliability: reliable"]
+            lines += [] if depth is None else [f"          depth: {depth}"]
     path.write_text("\n".join(lines) + "\n")
     return path
 
