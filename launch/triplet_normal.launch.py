@@ -1,29 +1,35 @@
 """Start the triplet_normal node the way ROS users start perception nodes:
 
     ros2 launch triplet_normal_ros triplet_normal.launch.py input:=/camera/depth/points output:=/camera/depth/normals
+    ros2 launch triplet_normal_ros triplet_normal.launch.py preset:=lidar input:=/ouster/points
     ros2 launch triplet_normal_ros triplet_normal.launch.py params_file:=/path/to/my_params.yaml
 
-Arguments: ``input`` and ``output`` remap the node's topics (defaults: the node's own names), ``params_file`` is a
-ROS 2 parameter file (default: the installed ``share/triplet_normal_ros/config/params.yaml``). The node also
-publishes its health on ``/diagnostics`` (docs/NODE.md).
+Arguments: ``input`` and ``output`` remap the node's topics (defaults: the node's own names); ``preset`` picks a
+parameter file installed under ``share/triplet_normal_ros/config/``: ``params`` (the node's defaults, every parameter
+listed), ``depth_camera`` or ``lidar`` (README, "Sensor presets"); ``params_file`` is any ROS 2 parameter file
+(default: the preset's). The node also publishes its health on ``/diagnostics`` (docs/NODE.md).
 """
 
 import os
 
 from ament_index_python.packages import get_package_share_directory
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
-from launch.substitutions import LaunchConfiguration
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
+
+from launch import LaunchDescription
 
 PACKAGE = "triplet_normal_ros"
 EXECUTABLE = "node"
 NODE_NAME = "triplet_normal"
+#: The parameter files under share/<package>/config/ that `preset` may name.
+PRESETS = ["params", "depth_camera", "lidar"]
 
 
 def generate_launch_description() -> LaunchDescription:
-    """Three arguments and one node: the package's ``node`` executable with the parameter file and the remaps."""
-    default_params = os.path.join(get_package_share_directory(PACKAGE), "config", "params.yaml")
+    """Four arguments and one node: the package's ``node`` executable with the parameter file and the remaps."""
+    config = os.path.join(get_package_share_directory(PACKAGE), "config")
+    default_params = PathJoinSubstitution([config, [LaunchConfiguration("preset"), ".yaml"]])
     return LaunchDescription(
         [
             DeclareLaunchArgument("input", default_value="input", description="PointCloud2 topic to read"),
@@ -31,7 +37,13 @@ def generate_launch_description() -> LaunchDescription:
                 "output", default_value="output", description="topic for the clouds with normals and curvature"
             ),
             DeclareLaunchArgument(
-                "params_file", default_value=default_params, description="ROS 2 parameter file for the node"
+                "preset",
+                default_value="params",
+                choices=PRESETS,
+                description="installed parameter file: params (the node's defaults), depth_camera or lidar",
+            ),
+            DeclareLaunchArgument(
+                "params_file", default_value=default_params, description="ROS 2 parameter file (default: the preset)"
             ),
             Node(
                 package=PACKAGE,

@@ -278,10 +278,11 @@ def expected_xyz(msg: PointCloud2) -> np.ndarray:
 
 
 def answer_too_wide(msg: PointCloud2) -> str | None:
-    """The node's answer is packed: every field but the normal ones, then 16 bytes of normals and curvature. Its
-    point_step and row_step are uint32 too, so an answer that would not fit is refused ("uint32" in the message)."""
-    kept = [f for f in msg.fields if f.name not in NORMALS]
-    step = sum(_size(f.datatype) * f.count for f in kept) + 4 * len(NORMALS)
+    """The node's answer keeps each input point and puts 16 bytes of normals and curvature at its end (point_step, or
+    the fields' extent if larger), rounded up to a multiple of 4. Its point_step and row_step are uint32 too, so an
+    answer that would not fit is refused ("uint32" in the message)."""
+    extent = max((f.offset + _size(f.datatype) * f.count for f in msg.fields), default=0)
+    step = -(-max(msg.point_step, extent) // 4) * 4 + 4 * len(NORMALS)
     return "uint32" if max(step, msg.width * step) > UINT32_MAX else None
 
 
@@ -289,7 +290,7 @@ def node_refusal(msg: PointCloud2) -> str | None:
     """Why the node must refuse this cloud (a fragment of the CloudFormatError), or None when it must answer it.
 
     An empty cloud gets an empty answer with the normal fields (only its field declarations can be wrong); any other
-    is read with read_xyz's rules. Either way the packed answer must fit uint32.
+    is read with read_xyz's rules. Either way the answer must fit uint32.
     """
     if msg.height * msg.width == 0:
         reason = expected_error(msg, need_xyz=False) if msg.fields else None

@@ -67,7 +67,9 @@ def node_answer(
     settings = node_settings(params)
     estimator = estimator or node_estimator(params)
     viewpoint = settings.viewpoint if settings.orient else None
-    return estimate_cloud(estimator, points, shape=shape, viewpoint=viewpoint)
+    return estimate_cloud(
+        estimator, points, shape=shape, viewpoint=viewpoint, zeros_are_no_returns=settings.zeros_are_no_returns
+    )
 
 
 #: What parsing a small file or message that claims a huge size may allocate at most: far below what the claim needs.

@@ -1,9 +1,10 @@
 """launch/triplet_normal.launch.py without ``launch`` (not installable here): it compiles, calls the real launch API,
 starts the console script setup.py installs as ``node`` (the module that defines the node's name) from setup.py's
-package, under the node's name; every argument it declares is a topic remap, the parameter file, or a node parameter
-(``ros.params.SPECS``) with the node's own default; its default parameter file resolves (through ament_index, as
-``ros2 launch`` would) to the config/params.yaml that setup.py's data_files install under share/, and colcon installs
-both files there.
+package, under the node's name; every argument it declares is a topic remap, the parameter file, the preset, or a node
+parameter (``ros.params.SPECS``) with the node's own default; its default parameter file is the preset's, under the
+config directory that resolves (through ament_index, as ``ros2 launch`` would) to where setup.py's data_files install
+config/*.yaml under share/; every preset is such a file, the default preset is config/params.yaml, and colcon installs
+them there.
 
 The checks read the syntax trees of the launch file and setup.py; the default path expression is evaluated for real,
 against a prefix laid out from setup.py's data_files and against a colcon install.
@@ -34,6 +35,7 @@ SETUP = REPO / "setup.py"
 #: argument of the same name; and the argument naming the parameter file.
 TOPICS = ("input", "output")
 PARAMS_FILE = "params_file"
+PRESET = "preset"
 
 
 def tree() -> ast.Module:
@@ -106,6 +108,7 @@ def test_it_uses_the_launch_api_and_defines_what_ros2_launch_calls() -> None:
         ("launch", "LaunchDescription"),
         ("launch.actions", "DeclareLaunchArgument"),
         ("launch.substitutions", "LaunchConfiguration"),
+        ("launch.substitutions", "PathJoinSubstitution"),
         ("launch_ros.actions", "Node"),
         ("ament_index_python.packages", "get_package_share_directory"),
     }
@@ -144,18 +147,23 @@ def test_every_argument_is_a_topic_remap_the_parameter_file_or_a_node_parameter_
     first, *rest = args["parameters"]
     assert first == ("LaunchConfiguration", PARAMS_FILE)
     assert declared[PARAMS_FILE]["default_value"] == ("name", "default_params")
+    presets = constants(module)["PRESETS"]
+    assert declared[PRESET]["choices"] == presets and declared[PRESET]["default_value"] == "params"
+    assert all((REPO / "config" / f"{preset}.yaml").is_file() for preset in presets), presets
+    default_expression = _assignment(module, "default_params")
+    assert ast.unparse(default_expression) == "PathJoinSubstitution([config, [LaunchConfiguration('preset'), '.yaml']])"
     # Any other argument is a node parameter of the same name, passed as that parameter, with the node's default.
     specs = {spec.name: spec for spec in SPECS}
     assert all(isinstance(mapping, dict) for mapping in rest), f"after the parameter file only name: value maps: {rest}"
     passed = {name: setting for mapping in rest for name, setting in mapping.items()}
-    for name in set(declared) - {*TOPICS, PARAMS_FILE}:
+    for name in set(declared) - {*TOPICS, PARAMS_FILE, PRESET}:
         assert name in specs, f"launch argument {name!r} is not a node parameter ({sorted(specs)})"
         assert passed.get(name) == ("LaunchConfiguration", name), f"launch argument {name!r} is not passed to the node"
         text = declared[name]["default_value"]
         assert isinstance(text, str), f"{name}: default {text!r} is not a literal"
         default = text if specs[name].kind is str else yaml.safe_load(text)  # how ros2 launch types the string
         assert default == specs[name].default, f"{name}: launch default {text!r}, node default {specs[name].default!r}"
-    assert set(passed) <= set(declared) - {*TOPICS, PARAMS_FILE}, "a parameter is set in the launch file itself"
+    assert set(passed) <= set(declared) - {*TOPICS, PARAMS_FILE, PRESET}, "a parameter is set in the launch file itself"
 
 
 def _installed_data_files(prefix: Path) -> None:
@@ -166,7 +174,7 @@ def _installed_data_files(prefix: Path) -> None:
             shutil.copyfile(REPO / source, prefix / destination / Path(source).name)
 
 
-def test_its_default_parameter_file_is_the_params_yaml_setup_py_installs_under_share(
+def test_its_presets_are_the_parameter_files_setup_py_installs_under_share(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     prefix = tmp_path / "prefix"
@@ -176,20 +184,22 @@ def test_its_default_parameter_file_is_the_params_yaml_setup_py_installs_under_s
     monkeypatch.setenv("AMENT_PREFIX_PATH", str(prefix))  # the package index the data files include
     module = tree()
     scope = {"os": os, "get_package_share_directory": get_package_share_directory, **constants(module)}
-    default = Path(eval(compile(ast.Expression(_default_params_expression(module)), str(LAUNCH), "eval"), scope))
-    assert default == share / "config" / "params.yaml"
-    assert default.read_bytes() == (REPO / "config" / "params.yaml").read_bytes()
+    config = Path(eval(compile(ast.Expression(_assignment(module, "config")), str(LAUNCH), "eval"), scope))
+    assert config == share / "config"
+    for preset in constants(module)["PRESETS"]:
+        assert (config / f"{preset}.yaml").read_bytes() == (REPO / "config" / f"{preset}.yaml").read_bytes()
 
 
-def _default_params_expression(module: ast.Module) -> ast.expr:
+def _assignment(module: ast.Module, name: str) -> ast.expr:
+    """The expression assigned to `name` inside generate_launch_description."""
     (function,) = [s for s in module.body if isinstance(s, ast.FunctionDef)]
     assigns = [s for s in ast.walk(function) if isinstance(s, ast.Assign)]
-    (assign,) = [s for s in assigns if getattr(s.targets[0], "id", "") == "default_params"]
+    (assign,) = [s for s in assigns if getattr(s.targets[0], "id", "") == name]
     return assign.value
 
 
 @pytest.mark.slow  # colcon build
-def test_colcon_installs_it_and_its_default_params_file_resolves_to_the_installed_one(
+def test_colcon_installs_it_and_its_presets_resolve_to_the_installed_files(
     install_prefix: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     installed = install_prefix / "share" / PACKAGE / "launch" / LAUNCH.name
@@ -200,9 +210,10 @@ def test_colcon_installs_it_and_its_default_params_file_resolves_to_the_installe
     executable = install_prefix / "lib" / PACKAGE / keywords(node, constants(module))["executable"]
     assert executable.is_file() and os.access(executable, os.X_OK)
 
-    expression = ast.Expression(_default_params_expression(module))
+    expression = ast.Expression(_assignment(module, "config"))
     monkeypatch.setenv("AMENT_PREFIX_PATH", str(install_prefix))  # what sourcing install/setup.bash sets
     scope = {"os": os, "get_package_share_directory": get_package_share_directory, **constants(module)}
-    default = Path(eval(compile(expression, str(LAUNCH), "eval"), scope))
-    assert default == install_prefix / "share" / PACKAGE / "config" / "params.yaml"
-    assert default.read_bytes() == (REPO / "config" / "params.yaml").read_bytes()
+    config = Path(eval(compile(expression, str(LAUNCH), "eval"), scope))
+    assert config == install_prefix / "share" / PACKAGE / "config"
+    for preset in constants(module)["PRESETS"]:
+        assert (config / f"{preset}.yaml").read_bytes() == (REPO / "config" / f"{preset}.yaml").read_bytes()

@@ -41,7 +41,7 @@ def frame_arrays(seed: int, learned: NormalEstimator, lite: NormalEstimator) -> 
     image = MomentImage(torch.from_numpy(points), frame.points.shape[:2])
     fit = image.pca(DEPTH_RADIUS)
     ray = ray_noise_normal(fit)
-    cue = image.structure(fit, DEPTH_RADIUS, ray)
+    cue = image.structure(fit, ray)
     variation = fit.eigvals[:, 0] / fit.eigvals.sum(dim=1).clamp_min(1e-30)
     learned.radius = lite.radius = DEPTH_RADIUS
     out = {

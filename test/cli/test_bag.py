@@ -2,8 +2,9 @@
 
 The output is read back and compared with NormalEstimator on the same clouds, oriented towards the viewpoint as
 the node does: normals and curvature exactly, xyz and the other fields byte for byte, receive timestamps and header
-stamps unchanged, the other topics copied through. Also: storage conversion, --no-copy, a hybrid run, a malformed
-cloud skipped with a warning, refusal to overwrite, resume after Ctrl-C, and every failure as one line.
+stamps unchanged, the other topics copied through, those of types the bag does not define too. Also: storage
+conversion, --no-copy, --start/--end/--limit, --keep-zeros, a hybrid run, a malformed cloud skipped with a warning,
+refusal to overwrite, resume after Ctrl-C (and its refusal to go on with other options), and every failure as one line.
 """
 
 from __future__ import annotations
@@ -18,10 +19,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 from rosbag_files import (
+    BLOB,
     CLOUD,
+    CUSTOM_HASH,
+    OPAQUE,
     STRING,
+    UNDESCRIBED,
     Record,
     cloud,
+    connections,
     organized_points,
     read_bag,
     read_raw,
@@ -29,6 +35,7 @@ from rosbag_files import (
     stamp_ns,
     storage_of,
     string,
+    undescribed_records,
     write_bag,
 )
 
@@ -39,6 +46,7 @@ from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.orientation import orient_towards_viewpoint
 from triplet_normal_ros.io import bag_output
 from triplet_normal_ros.io.bag_output import partial_path
+from triplet_normal_ros.io.bags import NO_TYPE_HASH
 from triplet_normal_ros.io.pointcloud2 import read_field, read_xyz
 from triplet_normal_ros.ros.params import NodeSettings
 
@@ -46,6 +54,9 @@ SCRIPT = Path(sys.executable).with_name("triplet-normal")
 RADIUS = 0.15
 PCA = ["--method", "pca", "--radius", str(RADIUS), "--device", "cpu"]
 SHAPE = (30, 40)
+#: The first message of `timeline_records`' bag (ns): --start and --end count from here.
+T0 = 50 * 10**9
+SECOND = 10**9
 
 
 def mixed_records() -> list[Record]:
@@ -60,6 +71,15 @@ def mixed_records() -> list[Record]:
     for i, msg in enumerate(clouds):
         records.append(Record("/points", CLOUD, 1_000_000 * (i + 1), msg))
         records.append(Record("/chatter", STRING, 1_000_000 * (i + 1) + 500, string(f"message {i}")))
+    return records
+
+
+def timeline_records() -> list[Record]:
+    """A cloud on /points every second from T0 (at 0, 1, ..., 5 s) and a string on /chatter half a second after each."""
+    records = []
+    for k in range(6):
+        records.append(Record("/points", CLOUD, T0 + k * SECOND, cloud(scattered_points(2000, seed=10 + k), k)))
+        records.append(Record("/chatter", STRING, T0 + k * SECOND + SECOND // 2, string(f"{k}.5 s")))
     return records
 
 
@@ -140,6 +160,94 @@ def test_converts_storage_and_writes_only_the_output_with_no_copy(tmp_path: Path
     assert [r.topic for r in got] == ["/n", "/n"]
     for record, source_record in zip(got, [r for r in records if r.topic == "/points"], strict=True):
         assert_normals_match(record, source_record)
+
+
+@pytest.mark.parametrize(("storage", "output_storage"), [("sqlite3", "sqlite3"), ("mcap", "mcap"), ("mcap", "sqlite3"),
+                                                         ("sqlite3", "mcap")])  # fmt: skip
+def test_topics_the_bag_does_not_define_are_copied_raw_with_a_note(
+    tmp_path: Path, capsys, storage: str, output_storage: str
+) -> None:
+    records = undescribed_records()
+    source = write_bag(tmp_path / "in", storage, records, UNDESCRIBED)
+    out = tmp_path / "out"
+    status = main(["bag", str(source), str(out), "--topic", "/points", "--storage", output_storage, *PCA])
+    captured = capsys.readouterr()
+    assert status == 0, captured.err
+    assert captured.err.splitlines() == [
+        f"triplet-normal: note: topic /blob ({BLOB}): no message definition in the bag; copied as raw messages",
+        f"triplet-normal: note: topic /opaque ({OPAQUE}): no message definition in the bag; copied as raw messages",
+    ]
+    assert "2 clouds on /points (0 skipped), 3 topics copied" in captured.out
+    assert storage_of(out) == output_storage
+    assert [r for r in read_raw(out) if r[0] != "/points/normals"] == read_raw(source)  # byte for byte, same times
+    declared = connections(out)
+    assert [(declared[t].msgtype, declared[t].msgdef.data, declared[t].digest) for t in ("/blob", "/opaque")] == [
+        (BLOB, "", NO_TYPE_HASH),  # the bag recorded no hash; rosbags' writer needs one
+        (OPAQUE, "", CUSTOM_HASH),
+    ]
+    normals = read_bag(out, {"/points/normals"})
+    clouds = [r for r in records if r.topic == "/points"]
+    assert len(normals) == len(clouds) == 2
+    for got, source_record in zip(normals, clouds, strict=True):
+        assert_normals_match(got, source_record)
+
+
+@pytest.mark.parametrize(
+    ("storage", "part", "window", "words"),
+    [
+        ("sqlite3", ["--start", "2", "--end", "4"], (2, 4), "from 2 s to 4 s"),  # a cloud at each end: 2 in, 4 out
+        ("mcap", ["--start", "4.5"], (4.5, 6), "from 4.5 s to its end"),  # a string at the start, exactly
+        ("mcap", ["--end", "1"], (0, 1), "from 0 s to 1 s"),
+    ],
+)
+def test_start_and_end_read_only_the_messages_between(
+    tmp_path: Path, capsys, storage: str, part: list[str], window: tuple[float, float], words: str
+) -> None:
+    records = timeline_records()
+    source = write_bag(tmp_path / "in", storage, records)
+    out = tmp_path / "out"
+    summary = run_ok(capsys, [source, out, "--topic", "/points", *part, *PCA])
+    inside = [r for r in records if window[0] * SECOND <= r.timestamp - T0 < window[1] * SECOND]
+    clouds = [r for r in inside if r.topic == "/points"]
+    assert summary.startswith(f"{source} ({words}): {len(clouds)} clouds on /points (0 skipped), 2 topics copied;")
+    copied = [r for r in read_raw(out) if r[0] != "/points/normals"]
+    assert copied == [r for r in read_raw(source) if (r[0], r[2]) in {(i.topic, i.timestamp) for i in inside}]
+    assert [(r[0], r[2]) for r in copied] == [(r.topic, r.timestamp) for r in inside]
+    normals = [r for r in read_bag(out) if r.topic == "/points/normals"]
+    assert len(normals) == len(clouds) > 0
+    for got, source_record in zip(normals, clouds, strict=True):
+        assert_normals_match(got, source_record)
+
+
+def test_limit_ends_the_output_at_the_nth_cloud(tmp_path: Path, capsys) -> None:
+    records = timeline_records()
+    source = write_bag(tmp_path / "in", "mcap", records)
+    out = tmp_path / "out"
+    summary = run_ok(capsys, [source, out, "--topic", "/points", "--start", "1", "--limit", "2", *PCA])
+    assert summary.startswith(f"{source} (from 1 s to its end, at most 2 clouds): 2 clouds on /points (0 skipped)")
+    got = read_bag(out)
+    at = [T0 + SECOND, T0 + 3 * SECOND // 2, T0 + 2 * SECOND]  # the clouds at 1 s and 2 s, the string between
+    assert [(r.topic, r.timestamp) for r in got] == [
+        ("/points", at[0]), ("/points/normals", at[0]), ("/chatter", at[1]),
+        ("/points", at[2]), ("/points/normals", at[2]),
+    ]  # fmt: skip
+    assert_normals_match(got[4], records[4])
+
+
+def test_points_at_the_origin_are_no_returns_unless_keep_zeros(tmp_path: Path, capsys) -> None:
+    u, v = np.meshgrid(np.arange(-10, 11) * 0.05, np.arange(-10, 11) * 0.05)
+    points = np.stack([u, v, 0.2 * u + 0.1 * v], axis=-1).reshape(-1, 3)  # a plane through the origin
+    origin = ~points.any(axis=1)
+    assert origin.sum() == 1
+    source = write_bag(tmp_path / "in", "sqlite3", [Record("/points", CLOUD, 1, cloud(points, 1, height=21))])
+    for keep_zeros in (False, True):
+        out = tmp_path / f"out_{keep_zeros}"
+        option = ["--keep-zeros"] if keep_zeros else []
+        run_ok(capsys, [source, out, "--topic", "/points", "--no-copy", *PCA, *option])
+        (got,) = read_bag(out)
+        normals = np.stack([read_field(got.msg, f"normal_{a}") for a in "xyz"], axis=1)
+        assert np.isfinite(normals[~origin]).all()
+        assert np.isfinite(normals[origin]).all() == keep_zeros
 
 
 def test_no_orient_keeps_the_estimators_signs(tmp_path: Path, capsys) -> None:
@@ -250,6 +358,9 @@ def test_resumes_after_ctrl_c(tmp_path: Path, capsys) -> None:
         f"{partial_path(out)} was started with radius = 0.15, not 0.2; resume with the same input "
         "and options, or pass --overwrite to start again"
     )
+    for other, started in ((["--end", "1"], "end = None, not 1.0"), (["--limit", "5"], "limit = None, not 5"),
+                           (["--keep-zeros"], "keep_zeros = False, not True")):  # fmt: skip
+        assert f"was started with {started}; resume" in run_fails(capsys, [*argv, *other, "--resume"])
     summary = run_ok(capsys, [*argv, "--resume"])
     resumed_at = int(summary.split("resumed at input message ")[1].split(",")[0])
     assert written <= resumed_at < len(records)  # the kept work is reused, and there was work left
@@ -319,10 +430,25 @@ def test_output_topic_that_exists_in_the_input(small_bag: Path, tmp_path: Path, 
         (["--viewpoint", "0", "nan", "0"], "--viewpoint must be three finite numbers"),
         (["--overwrite", "--resume"], "argument --resume: not allowed with argument --overwrite"),
         (["--method", "magic"], "argument --method: invalid choice"),
+        (["--start", "-1"], "--start must be a finite number >= 0, got -1.0"),
+        (["--end", "inf"], "--end must be a finite number >= 0, got inf"),
+        (["--start", "2", "--end", "2"], "--end must be greater than --start (2 s), got 2"),
+        (["--end", "0"], "--end must be greater than --start (0 s), got 0"),
+        (["--limit", "0"], "--limit must be >= 1, got 0"),
+        (["--limit", "1.5"], "argument --limit: invalid int value: '1.5'"),
     ],
 )
 def test_bad_options(small_bag: Path, tmp_path: Path, capsys, extra: list[str], message: str) -> None:
     assert message in run_fails(capsys, [small_bag, tmp_path / "out", "--topic", "/points", *extra], 2)
+
+
+def test_a_window_after_the_last_message_is_refused(small_bag: Path, tmp_path: Path, capsys) -> None:
+    line = run_fails(capsys, [small_bag, tmp_path / "out", "--topic", "/points", "--start", "1", *PCA], 2)
+    assert line == (
+        f"triplet-normal: error: the window starts at 1 s, not before the end of {small_bag} (its messages span "
+        "0.000 s)"
+    )
+    assert not (tmp_path / "out").exists() and not partial_path(tmp_path / "out").exists()
 
 
 def test_out_inside_in_or_in_inside_out(small_bag: Path, tmp_path: Path, capsys) -> None:

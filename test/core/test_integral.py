@@ -210,7 +210,7 @@ def test_the_ray_noise_plane_is_exact_without_noise_and_holds_where_pca_tips_ove
     assert angle_error(integral.ray_noise_normal(fit).numpy(), exact).max() < 1e-4
     points, normal = noisy_wall(0.1)  # range noise rivals the window's extent: PCA's smallest axis is a guess
     image = integral.MomentImage(torch.from_numpy(points), (HEIGHT, WIDTH))
-    fit = image.pca(0.3)
+    fit = image.pca(0.15)
     valid = fit.valid.numpy()
     assert valid.mean() > 0.95
     pca_error = np.median(angle_error(fit.normal.numpy()[valid], exact[valid]))
@@ -231,12 +231,12 @@ def fold_depth() -> tuple[np.ndarray, np.ndarray]:
 def test_the_window_cue_is_quiet_on_a_noisy_plane_and_fires_at_a_fold() -> None:
     points, _ = noisy_wall(0.01)
     image = integral.MomentImage(torch.from_numpy(points), (HEIGHT, WIDTH))
-    cue = image.structure(image.pca(0.2), 0.2)
+    cue = image.structure(image.pca(0.2))
     assert np.quantile(cue.z.numpy(), 0.99) < 5.0
     depth, _ = fold_depth()
     points = pinhole(depth)
     image = integral.MomentImage(torch.from_numpy(points), (HEIGHT, WIDTH))
-    cue = image.structure(image.pca(0.1), 0.1)
+    cue = image.structure(image.pca(0.1))
     ridge = cue.bend.numpy().reshape(HEIGHT, WIDTH)[10:-10, WIDTH // 2 - 2 : WIDTH // 2 + 2]
     far = cue.bend.numpy().reshape(HEIGHT, WIDTH)[10:-10, :10]
     assert ridge.min() > 0.05 and far.max() < 1e-6

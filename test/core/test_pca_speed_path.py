@@ -3,7 +3,8 @@
 `_pool_normals` (gather by columns, one batched matmul, the closed-form 3 × 3 solver, eigh only where the two smallest
 eigenvalues nearly meet) must agree with `_pool_pca` (masked covariance + eigh), which `hybrid` still uses, and the
 whole `pca` estimate with a brute-force numpy ball PCA: the nearest k strictly inside the ball, NaN rows for
-non-finite points and for fewer than 3 neighbours. Correctness only: no timing is asserted.
+non-finite points, for fewer than 3 neighbours and for neighbourhoods that span no plane (`frames.COLLINEAR_RATIO`).
+Correctness only: no timing is asserted.
 """
 
 import numpy as np
@@ -12,7 +13,7 @@ import torch
 
 from triplet_normal_ros.core import neighbours
 from triplet_normal_ros.core.estimator import NormalEstimator, _pool_normals, _pool_pca
-from triplet_normal_ros.core.frames import surface_variation
+from triplet_normal_ros.core.frames import COLLINEAR_RATIO, surface_variation
 from triplet_normal_ros.core.neighbours import NeighbourIndex
 
 
@@ -44,6 +45,8 @@ def _brute_force_pca(points: np.ndarray, radius: float, k: int) -> tuple[np.ndar
         local = finite[nearest] - centre
         eigvals, eigvecs = np.linalg.eigh(np.cov(local.T, bias=True))
         eigvals = eigvals.clip(min=0.0)
+        if eigvals[1] <= COLLINEAR_RATIO * eigvals[2]:
+            continue
         normals[row] = eigvecs[:, 0]
         curvature[row] = eigvals[0] / eigvals.sum() if eigvals.sum() > 0 else 0.0
     return normals, curvature

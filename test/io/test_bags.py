@@ -1,8 +1,9 @@
 """io.bags and io.bag_output on rosbag2 bags the tests write (sqlite3 and MCAP).
 
-Reading: topics, counts, time order, the storage, bare storage files; clouds decode to the points they were built
-from. Writing: a cloud with normals is byte for byte the node's message (`pointcloud2.with_normals`). Errors: a
-missing, corrupt or foreign bag, a missing topic (naming the others), another message type, undecodable bytes.
+Reading: topics, counts, time order, a time window, the storage, bare storage files; clouds decode to the points
+they were built from; types the bag does not define are kept as stored. Writing: a cloud with normals is byte for
+byte the node's message (`pointcloud2.with_normals`). Errors: a missing, corrupt or foreign bag, a missing topic
+(naming the others), another message type, undecodable bytes.
 The resumable writer: refuses to overwrite, replaces only bags, resumes after an exception, after a half-written
 message and after another process died without cleaning up, and refuses to resume a different job.
 """
@@ -18,22 +19,29 @@ from pathlib import Path
 import numpy as np
 import pytest
 from rosbag_files import (
+    BLOB,
     CLOUD,
+    CUSTOM_HASH,
+    OPAQUE,
     STRING,
     TYPES,
+    UNDESCRIBED,
     Record,
     cloud,
+    connections,
     organized_points,
     read_raw,
     scattered_points,
     string,
+    undescribed_records,
     write_bag,
 )
+from rosbags.interfaces import MessageDefinitionFormat
 from sensor_msgs.msg import PointCloud2, PointField
 
 from triplet_normal_ros.errors import BagError, CloudFormatError
 from triplet_normal_ros.io.bag_output import ResumableBagWriter, partial_path
-from triplet_normal_ros.io.bags import BagMessage, InputBag, decode_cloud, encode_cloud
+from triplet_normal_ros.io.bags import NO_TYPE_HASH, BagMessage, InputBag, decode_cloud, encode_cloud
 from triplet_normal_ros.io.pointcloud2 import read_field, read_xyz, with_normals
 
 STORAGES = ("sqlite3", "mcap")
@@ -78,6 +86,34 @@ def test_reads_topics_counts_and_time_order(mixed_bag: Path, storage: str) -> No
         ]
         clouds = list(bag.messages({"/points"}))
         assert [(m.index, m.timestamp) for m in clouds] == [(0, 1_000), (1, 2_000), (2, 3_000)]
+
+
+def test_reads_a_time_window_from_the_first_message(mixed_bag: Path) -> None:
+    """[start, end) in ns after the bag's first message (at 1 000 ns): both ends exact."""
+    with InputBag(mixed_bag) as bag:
+        assert (bag.start_time, bag.duration) == (1_000, 2_501)
+        window = list(bag.messages(None, 1_000, 2_000))
+        assert [(m.index, m.topic, m.timestamp) for m in window] == [(0, "/points", 2_000), (1, "/chatter", 2_500)]
+        assert [m.timestamp for m in bag.messages({"/chatter"}, 500)] == [1_500, 2_500, 3_500]
+        assert [m.timestamp for m in bag.messages(None, None, 1)] == [1_000]
+
+
+def test_types_the_bag_does_not_define_are_kept_as_stored(tmp_path: Path, storage: str) -> None:
+    source = write_bag(tmp_path / "in", storage, undescribed_records(), UNDESCRIBED)
+    stored = connections(source)  # the fixture: as rosbag2 and rosbags leave such types
+    assert (stored["/blob"].msgtype, stored["/blob"].msgdef.format, stored["/blob"].digest) == (
+        BLOB, MessageDefinitionFormat.NONE, "",
+    )  # fmt: skip
+    assert (stored["/opaque"].msgtype, stored["/opaque"].msgdef.data, stored["/opaque"].digest) == (
+        OPAQUE, "", CUSTOM_HASH,
+    )  # fmt: skip
+    with InputBag(source) as bag:
+        specs = {spec.topic: spec for spec in bag.specs()}
+    assert [(s.msgdef, s.digest, s.described) for s in (specs["/blob"], specs["/opaque"])] == [
+        ("", NO_TYPE_HASH, False),  # rosbags' writer needs a hash: the documented placeholder
+        ("", CUSTOM_HASH, False),
+    ]
+    assert specs["/points"].described and specs["/points"].digest == stored["/points"].digest
 
 
 def test_reads_a_bare_storage_file(mixed_bag: Path, storage: str) -> None:

@@ -183,7 +183,7 @@ def test_the_nodes_answer_keeps_every_field_or_refuses(msg: PointCloud2) -> None
         assert [f.name for f in out.fields] == [f.name for f in kept] + list(NORMAL_FIELDS)
         _assert_publishable(out)
         return
-    if reason == "uint32":  # a readable cloud whose packed answer would not fit
+    if reason == "uint32":  # a readable cloud whose answer would not fit
         _expect_refusal(lambda: with_normals(msg, *_normals(n)), reason)
         return
     if reason is not None:  # the node calls read_xyz first; with_normals must refuse the same cloud on its own
@@ -192,12 +192,14 @@ def test_the_nodes_answer_keeps_every_field_or_refuses(msg: PointCloud2) -> None
         return
     normals, curvature = _normals(n)
     out = with_normals(msg, normals, curvature)
-    assert (out.height, out.width, out.is_bigendian) == (msg.height, msg.width, False)
+    assert (out.height, out.width, out.is_bigendian) == (msg.height, msg.width, msg.is_bigendian)
     assert len(out.data) == out.height * out.row_step and out.row_step == out.width * out.point_step
-    assert [(f.name, f.datatype, f.count) for f in out.fields] == [(f.name, f.datatype, f.count) for f in kept] + [
-        (name, PointField.FLOAT32, 1) for name in NORMAL_FIELDS
-    ]
-    for i, f in enumerate(kept):  # byte for byte (bit patterns, NaN payloads included), now little-endian
+    at = out.point_step - 16
+    assert at % 4 == 0 and msg.point_step <= at < msg.point_step + 4
+    assert [(f.name, f.offset, f.datatype, f.count) for f in out.fields] == [
+        (f.name, f.offset, f.datatype, f.count) for f in kept
+    ] + [(name, at + 4 * i, PointField.FLOAT32, 1) for i, name in enumerate(NORMAL_FIELDS)]
+    for i, f in enumerate(kept):  # byte for byte (bit patterns, NaN payloads included), in the input's byte order
         assert _out_field_bits(out, i) == field_bits(msg, f), f.name
     written = np.array([_out_field_bits(out, len(kept) + j) for j in range(4)], dtype=np.uint32).reshape(4, n).T
     np.testing.assert_array_equal(written.view(np.float32), np.column_stack([normals, curvature]))

@@ -7,7 +7,6 @@ checked with ``struct`` so a layout bug cannot cancel itself out between reader 
 from __future__ import annotations
 
 import array
-import itertools
 import struct
 
 import numpy as np
@@ -95,20 +94,38 @@ def _normals(n: int, seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
     return rng.standard_normal((n, 3)).astype(np.float32), rng.random(n).astype(np.float32)
 
 
-def _assert_packed(out: PointCloud2) -> None:
-    assert out.is_bigendian is False
+def _code(f: PointField) -> str:
+    return next(c for c, d in CODES.items() if d == f.datatype)
+
+
+def _normals_offset(msg: PointCloud2) -> int:
+    """The spec of the answer: the input's point_step (or its fields' extent, if larger) rounded up to 4."""
+    extent = max((f.offset + np.dtype(_code(f)).itemsize * f.count for f in msg.fields), default=0)
+    return -(-max(msg.point_step, extent) // 4) * 4
+
+
+def _points(msg: PointCloud2, size: int) -> list[bytes]:
+    """Per point in row-major order, the first `size` bytes at its start."""
+    data = bytes(msg.data)
+    starts = [r * msg.row_step + c * msg.point_step for r in range(msg.height) for c in range(msg.width)]
+    return [data[start : start + size] for start in starts]
+
+
+def _assert_layout(out: PointCloud2, msg: PointCloud2) -> None:
+    """The answer's layout: input fields where they were, the normal fields on the 4-byte boundary at or after the
+    input's point_step, zero bytes between, no row padding, the input's byte order; each input point byte for byte."""
+    at = _normals_offset(msg)
+    kept = [(f.name, f.offset, f.datatype, f.count) for f in msg.fields if f.name not in NORMAL_FIELDS]
+    normal_fields = [(name, at + 4 * i, PointField.FLOAT32, 1) for i, name in enumerate(NORMAL_FIELDS)]
+    assert [(f.name, f.offset, f.datatype, f.count) for f in out.fields] == kept + normal_fields
+    assert at % 4 == 0 and out.point_step == at + 16
+    assert out.is_bigendian == msg.is_bigendian
     assert isinstance(out.data, array.array) and out.data.typecode == "B"
     assert out.row_step == out.width * out.point_step
     assert len(out.data) == out.height * out.row_step
-    assert [f.name for f in out.fields][-4:] == list(NORMAL_FIELDS)
-    assert all(f.datatype == PointField.FLOAT32 and f.count == 1 for f in out.fields[-4:])
-    ends = sorted((f.offset, f.offset + np.dtype(_code(f)).itemsize * f.count) for f in out.fields)
-    assert ends[0][0] == 0 and ends[-1][1] == out.point_step
-    assert all(a[1] == b[0] for a, b in itertools.pairwise(ends)), "output must be packed"
-
-
-def _code(f: PointField) -> str:
-    return next(c for c, d in CODES.items() if d == f.datatype)
+    assert _points(out, msg.point_step) == _points(msg, msg.point_step)
+    padding = [point[msg.point_step :] for point in _points(out, at)]
+    assert padding == [bytes(at - msg.point_step)] * len(padding)
 
 
 def _assert_round_trip(msg: PointCloud2) -> PointCloud2:
@@ -116,7 +133,7 @@ def _assert_round_trip(msg: PointCloud2) -> PointCloud2:
     n = msg.height * msg.width
     normals, curvature = _normals(n)
     out = with_normals(msg, normals, curvature)
-    _assert_packed(out)
+    _assert_layout(out, msg)
     assert (out.height, out.width) == (msg.height, msg.width)
     assert out.header == msg.header and out.header is not msg.header
     kept = [f for f in msg.fields if f.name not in NORMAL_FIELDS]
@@ -158,19 +175,45 @@ def test_padded_offsets_point_step_and_row_step() -> None:
     expected = np.column_stack([values[a] for a in "xyz"]).astype(np.float32)
     np.testing.assert_array_equal(read_xyz(msg), expected)
     out = _assert_round_trip(msg)
-    assert [f.name for f in out.fields] == ["rgb", "x", "y", "z", *NORMAL_FIELDS]
-    assert out.point_step == 16 + 16 and out.row_step == w * 32
+    assert [(f.name, f.offset) for f in out.fields[:4]] == [("rgb", 20), ("x", 2), ("y", 8), ("z", 14)]
+    assert out.point_step == 32 + 16 and out.row_step == w * 48
 
 
-def test_big_endian_converts_to_little_endian_with_same_values() -> None:
+@pytest.mark.parametrize("bigendian", [False, True])
+@pytest.mark.parametrize("row_padding", [0, 7])
+@pytest.mark.parametrize(
+    ("point_step", "normal_x_at"),
+    [(12, 12), (16, 16), (45, 48)],  # xyz alone; xyz + intensity (PCL's PointXYZI); an odd driver layout
+)
+def test_normal_fields_start_on_a_4_byte_boundary(point_step: int, normal_x_at: int, row_padding: int, bigendian: bool):
+    h, w, n = 2, 3, 6
+    specs = _xyzrgb_specs()[:3]
+    if point_step >= 16:
+        specs.append(("intensity", 12, "f4", 1))
+    if point_step == 45:
+        specs += [("t", 16, "f8", 1), ("ring", 24, "u2", 1), ("ambient", 26, "u2", 9), ("return", 44, "u1", 1)]
+    rng = np.random.default_rng(point_step)
+    values = {**_xyz_values(n), **{name: rng.integers(0, 200, (n, count)) for name, _, _, count in specs[3:]}}
+    msg = _raw_cloud(specs, values, h, w, point_step, point_step * w + row_padding, bigendian)
+    out = _assert_round_trip(msg)  # input bytes identical, padding zero, normals read back by struct
+    assert out.fields[-4].offset == normal_x_at and out.point_step == normal_x_at + 16
+    np.testing.assert_array_equal(read_xyz(out), read_xyz(msg))
+    np.testing.assert_array_equal(read_field(out, "normal_z"), _normals(n)[0][:, 2])
+    np.testing.assert_array_equal(read_field(out, "curvature"), _normals(n)[1])
+
+
+def test_big_endian_stays_big_endian_with_same_values() -> None:
     h, w, n = 2, 3, 6
     values = {**_xyz_values(n), "rgb": np.full(n, np.nan), "ring": np.arange(n)}
     specs = [*_xyzrgb_specs(), ("ring", 16, "u2", 1)]
     msg = _raw_cloud(specs, values, h, w, point_step=20, row_step=20 * w, bigendian=True)
     np.testing.assert_array_equal(read_xyz(msg), np.column_stack([values[a] for a in "xyz"]).astype(np.float32))
     out = _assert_round_trip(msg)
+    assert out.is_bigendian is True
     np.testing.assert_array_equal(read_field(out, "ring"), np.arange(n, dtype=np.uint16))
     assert read_field(msg, "ring").dtype == np.dtype("=u2")
+    normal_y = struct.unpack_from(">f", bytes(out.data), out.point_step + out.fields[-3].offset)[0]
+    assert normal_y == _normals(n)[0][1, 1]  # big-endian bytes on the wire, like the input's
 
 
 def test_big_endian_keeps_nan_payload_bits() -> None:
@@ -259,10 +302,10 @@ def test_existing_normal_fields_are_replaced() -> None:
     ]
     values = {**_xyz_values(n), **{name: np.full(n, 9.0) for name in NORMAL_FIELDS}}
     msg = _raw_cloud(specs, values, 1, n, 36, 36 * n)
-    out = _assert_round_trip(msg)
-    assert [f.name for f in out.fields] == ["x", "y", "z", *NORMAL_FIELDS]
+    out = _assert_round_trip(msg)  # the old fields are no longer declared; their bytes stay in the point
+    assert [f.name for f in out.fields] == ["x", "y", "z", *NORMAL_FIELDS] and out.fields[-4].offset == 36
     again = with_normals(out, *_normals(n, seed=9))
-    assert [f.name for f in again.fields] == [f.name for f in out.fields] and again.point_step == out.point_step
+    assert [f.name for f in again.fields] == [f.name for f in out.fields] and again.point_step == out.point_step + 16
     np.testing.assert_array_equal(read_field(again, "curvature"), _normals(n, seed=9)[1])
 
 
@@ -356,18 +399,22 @@ def test_empty_clouds_still_declare_normal_fields() -> None:
     empty = _raw_cloud(_xyzrgb_specs(), {}, 1, 0, 16, 0)
     assert read_xyz(empty).shape == (0, 3)
     out = with_normals(empty, np.zeros((0, 3)), np.zeros(0))
-    _assert_packed(out)
+    _assert_layout(out, empty)
     assert (out.height, out.width, len(out.data), out.is_dense) == (1, 0, 0, True)
     assert [f.name for f in out.fields] == ["x", "y", "z", "rgb", *NORMAL_FIELDS]
 
     bare = PointCloud2(header=_header())  # default-constructed: no fields, steps 0
     out = empty_with_normals(bare)
-    assert [f.name for f in out.fields] == list(NORMAL_FIELDS) and out.point_step == 16
+    assert [f.name for f in out.fields] == list(NORMAL_FIELDS) and out.point_step == 16 and out.fields[0].offset == 0
     assert (out.height * out.width, len(out.data)) == (0, 0) and out.header == bare.header
 
     out = empty_with_normals(_valid_msg())  # a non-empty input whose points were all dropped
     assert (out.height, out.width, len(out.data)) == (1, 0, 0)
     assert [f.name for f in out.fields] == ["x", "y", "z", "rgb", *NORMAL_FIELDS]
+    assert out.point_step == with_normals(_valid_msg(), *_normals(6)).point_step == 32  # the same schema as a cloud's
+
+    unset = _raw_cloud(_xyzrgb_specs(), {}, 1, 0, 0, 0)  # a driver leaving point_step 0: the fields' extent counts
+    assert empty_with_normals(unset).fields[-4].offset == 16
 
 
 def test_make_cloud_and_read_field_round_trip() -> None:

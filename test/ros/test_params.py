@@ -288,3 +288,22 @@ def test_shipped_params_file_states_every_default() -> None:
         value = shipped[spec.name]
         assert type(value) is spec.kind, f"{spec.name}: {value!r} must be a {spec.kind.__name__} for rclpy"
         assert value == spec.default, f"{spec.name}: the file says {value!r}, the node's default is {spec.default!r}"
+
+
+@pytest.mark.parametrize("preset", ["depth_camera", "lidar"])
+def test_sensor_presets_set_only_valid_node_parameters(preset: str) -> None:
+    """config/<preset>.yaml: every key a node parameter of rclpy's type, every value one the node accepts; the depth
+    camera preset is the node's own defaults (the node's default stays right for depth cameras)."""
+    import yaml
+    from conftest import REPO
+
+    values = yaml.safe_load((REPO / "config" / f"{preset}.yaml").read_text())["/**"]["ros__parameters"]
+    specs = {spec.name: spec for spec in SPECS}
+    assert set(values) <= set(specs)
+    for name, value in values.items():
+        assert type(value) is specs[name].kind, f"{name}: {value!r}"
+    assert validate_all(values) is None
+    if preset == "depth_camera":
+        assert all(value == specs[name].default or name == "viewpoint" for name, value in values.items())
+    else:
+        assert values["range_scale"] > 0 and values["zeros_are_no_returns"] is True

@@ -59,6 +59,27 @@ def add_hybrid_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_sensor_options(p: argparse.ArgumentParser) -> None:
+    """--range-scale and --keep-zeros: what a spinning LiDAR needs (README, "Sensor presets")."""
+    p.add_argument(
+        "--range-scale",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="grow each ball to S x the point's range where that exceeds the radius (default 0: fixed; LiDAR: 0.03)",
+    )
+    p.add_argument(
+        "--keep-zeros",
+        action="store_true",
+        help="treat points at exactly (0, 0, 0) as real points; by default they are a LiDAR's no-returns and get NaN",
+    )
+
+
+def range_scale(value: float) -> None:
+    if not (math.isfinite(value) and 0 <= value <= 1):
+        raise UsageError(f"--range-scale must be a number in [0, 1], got {value}")
+
+
 def hybrid_options(args: argparse.Namespace) -> dict[str, Any]:
     """The given hybrid thresholds as NormalEstimator keywords, after checking them (UsageError)."""
     options = {}
@@ -77,6 +98,7 @@ def make_estimator(args: argparse.Namespace, radius: float):
     from ..core.estimator import NormalEstimator
 
     options = {"k": args.k, "checkpoint": args.checkpoint, "device": args.device, "neighbours": args.neighbours}
+    options["range_scale"] = args.range_scale
     options.update(hybrid_options(args))
     if args.batch_size is not None:
         options["batch_size"] = args.batch_size

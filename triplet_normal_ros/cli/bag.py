@@ -5,7 +5,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -22,8 +22,9 @@ SEGMENT_SECONDS = 30.0
 DESCRIPTION = """Read a rosbag2 (sqlite3 or MCAP; a bag directory or a bare .mcap/.db3 file) without ROS, estimate
 normals for every sensor_msgs/PointCloud2 on --topic exactly as the node does (same defaults, normals oriented towards
 --viewpoint), and write a new bag OUT: each cloud plus normal_x/y/z and curvature on --output-topic, with the input's
-receive timestamps and header stamps, and every input topic copied through unless --no-copy. OUT is written through
-OUT.partial and appears only when complete; an interrupted run continues with --resume. See docs/CLI.md."""
+receive timestamps and header stamps, and every input topic copied through unless --no-copy. --start, --end and
+--limit take a part of IN. OUT is written through OUT.partial and appears only when complete; an interrupted run
+continues with --resume. See docs/CLI.md."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -33,6 +34,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--output-topic", metavar="TOPIC", help="topic of the clouds with normals (default: TOPIC/normals)")
     p.add_argument("--storage", choices=("sqlite3", "mcap"), help="output storage (default: the input's)")
     p.add_argument("--no-copy", action="store_true", help="write only the output topic, not the input's topics")
+    p.add_argument("--start", type=float, metavar="S", help="read from S seconds after IN's first message (default 0)")
+    p.add_argument("--end", type=float, metavar="S", help="read up to (not at) S seconds after IN's first message")
+    p.add_argument("--limit", type=int, metavar="N", help="stop after the N-th cloud on --topic (OUT ends there)")
     again = p.add_mutually_exclusive_group()
     again.add_argument("--overwrite", action="store_true", help="replace an existing OUT and an unfinished OUT.partial")
     again.add_argument("--resume", action="store_true", help="continue the unfinished run in OUT.partial")
@@ -71,6 +75,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="flip normals to face this point of the cloud's frame (default 0 0 0: the sensor)",
     )
     p.add_argument("--no-orient", action="store_true", help="leave normal signs as estimated")
+    checks.add_sensor_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -101,13 +106,51 @@ def _check(args: argparse.Namespace) -> None:
     checks.at_least("batch-size", args.batch_size, 1)
     if not np.isfinite(args.viewpoint).all():
         raise UsageError(f"--viewpoint must be three finite numbers, got {args.viewpoint}")
+    checks.range_scale(args.range_scale)
     checks.hybrid_options(args)
-    if not (np.isfinite(args.segment_seconds) and args.segment_seconds >= 0):
-        raise UsageError(f"--segment-seconds must be a finite number >= 0, got {args.segment_seconds}")
+    _non_negative("segment-seconds", args.segment_seconds)
+    _check_part(args)
     checks.device(args.device)
     source, target = args.input.resolve(), args.output.resolve()
     if source == target or source in target.parents or target in source.parents:
         raise UsageError(f"OUT {args.output} must lie outside IN {args.input} and not contain it")
+
+
+def _non_negative(name: str, value: float | None) -> None:
+    """`value` must be a finite number >= 0 when given."""
+    if value is not None and not (np.isfinite(value) and value >= 0):
+        raise UsageError(f"--{name} must be a finite number >= 0, got {value}")
+
+
+def _check_part(args: argparse.Namespace) -> None:
+    """--start, --end and --limit describe a part of IN that can hold a message (IN's length is checked later)."""
+    _non_negative("start", args.start)
+    _non_negative("end", args.end)
+    if args.end is not None and args.end <= (args.start or 0):
+        raise UsageError(f"--end must be greater than --start ({args.start or 0:g} s), got {args.end:g}")
+    checks.at_least("limit", args.limit, 1)
+
+
+def _window(args: argparse.Namespace, bag) -> tuple[int | None, int | None]:
+    """--start and --end in ns after IN's first message; a window that begins after IN's last message is refused."""
+    start, end = (None if s is None else round(s * 1e9) for s in (args.start, args.end))
+    if (start is not None or end is not None) and (start or 0) >= bag.duration:
+        raise UsageError(
+            f"the window starts at {args.start or 0:g} s, not before the end of {args.input} (its messages span "
+            f"{bag.duration / 1e9:.3f} s)"
+        )
+    return start, end
+
+
+def _part(args: argparse.Namespace) -> str:
+    """The summary's words for the part of IN that was read, or '' for all of it."""
+    words = []
+    if args.start is not None or args.end is not None:
+        end = "its end" if args.end is None else f"{args.end:g} s"
+        words.append(f"from {args.start or 0:g} s to {end}")
+    if args.limit is not None:
+        words.append(f"at most {args.limit} clouds")
+    return f" ({', '.join(words)})" if words else ""
 
 
 def _convert(args: argparse.Namespace, bag) -> str:
@@ -115,12 +158,13 @@ def _convert(args: argparse.Namespace, bag) -> str:
     from ..io.bag_output import ResumableBagWriter
     from ..io.bags import CLOUD_TYPE
 
-    start = time.perf_counter()
+    began = time.perf_counter()
     cloud_spec = bag.cloud_spec(args.topic)
     output_topic = args.output_topic or f"{args.topic.rstrip('/')}/normals"
     copied = [] if args.no_copy else bag.specs()
     if output_topic in {spec.topic for spec in copied}:
         raise UsageError(f"--output-topic {output_topic} is a topic of {args.input}; choose another")
+    start, end = _window(args, bag)
     storage = args.storage or bag.storage
     topics = [*copied, cloud_spec.renamed(output_topic)]
     with ResumableBagWriter(
@@ -128,23 +172,43 @@ def _convert(args: argparse.Namespace, bag) -> str:
         overwrite=args.overwrite, resume=args.resume, segment_seconds=args.segment_seconds,
     ) as writer:  # fmt: skip
         estimator = checks.make_estimator(args, args.radius)
-        stream = bag.messages(None if copied else {args.topic})
-        total = bag.count(args.topic)
+        _note_undescribed(copied)  # only now: a run refused before any work says so in one line
+        stream = bag.messages(None if copied else {args.topic}, start, end)
+        total = _clouds_expected(args, bag)
         clouds, skipped = _estimate_all(args, stream, writer, estimator, (output_topic, CLOUD_TYPE), total)
         _merge(writer)
     resumed = f", resumed at input message {writer.resumed_at}" if writer.resumed_at else ""
     return (
-        f"{args.input}: {clouds} clouds on {args.topic} ({skipped} skipped){resumed}, {len(copied)} topics copied; "
-        f"{estimator.method}, radius {estimator.radius:g} m, {estimator.device}; {time.perf_counter() - start:.1f} s "
-        f"-> {args.output} ({storage}, {output_topic})"
+        f"{args.input}{_part(args)}: {clouds} clouds on {args.topic} ({skipped} skipped){resumed}, {len(copied)} "
+        f"topics copied; {estimator.method}, radius {estimator.radius:g} m, {estimator.device}; "
+        f"{time.perf_counter() - began:.1f} s -> {args.output} ({storage}, {output_topic})"
     )
 
 
-def _estimate_all(args, stream, writer, estimator, output_key: tuple[str, str], total: int) -> tuple[int, int]:
-    """Write each input message's outputs, in order, from the writer's resume point; returns (clouds, skipped)."""
+def _note_undescribed(copied: list) -> None:
+    """One line per copied topic whose type the bag does not define: OUT holds its messages but cannot decode them."""
+    for spec in copied:
+        if not spec.described:
+            print(
+                f"triplet-normal: note: topic {spec.topic} ({spec.msgtype}): no message definition in the bag; "
+                "copied as raw messages",
+                file=sys.stderr,
+            )
+
+
+def _clouds_expected(args: argparse.Namespace, bag) -> int | None:
+    """The progress bar's total: every cloud of IN, or --limit of them; unknown for a time window."""
+    everything = None if args.start is not None or args.end is not None else bag.count(args.topic)
+    if args.limit is None:
+        return everything
+    return args.limit if everything is None else min(args.limit, everything)
+
+
+def _estimate_all(args, stream, writer, estimator, output_key: tuple[str, str], total: int | None) -> tuple[int, int]:
+    """Write each input message's outputs, in order, from the writer's resume point, up to the --limit-th cloud;
+    returns (clouds, skipped)."""
     from tqdm import tqdm
 
-    viewpoint = None if args.no_orient else args.viewpoint
     clouds = skipped = 0
     bar = tqdm(total=total or None, unit="cloud", desc="normals", disable=None, file=sys.stderr)
     with _ctrl_c() as stop, bar:
@@ -153,23 +217,32 @@ def _estimate_all(args, stream, writer, estimator, output_key: tuple[str, str], 
                 raise KeyboardInterrupt
             is_cloud = message.topic == args.topic
             clouds += is_cloud
-            if message.index < writer.done:  # written before the interruption
-                bar.update(is_cloud)
-                continue
-            outputs = [] if args.no_copy else [((message.topic, message.msgtype), message.timestamp, message.raw)]
-            if is_cloud:
-                try:
-                    cloud = _with_normals(estimator, message, viewpoint, stop)
-                    outputs.append((output_key, message.timestamp, cloud))
-                except (CloudFormatError, EstimatorError) as error:
-                    skipped += 1
-                    warning = f"triplet-normal: warning: skipped the cloud at {message.timestamp} ns: {error}"
-                    bar.write(warning, file=sys.stderr)
-                bar.update(1)
-            writer.write(message.index, outputs)
+            if message.index >= writer.done:  # else it was written before the interruption
+                outputs, failed = _outputs(args, message, estimator, output_key, stop, bar.write)
+                skipped += failed
+                writer.write(message.index, outputs)
+            bar.update(is_cloud)
+            if is_cloud and clouds == args.limit:
+                break
         if stop.is_set():  # Ctrl-C after the estimator's last cancel check: still an interruption, not a finished run
             raise KeyboardInterrupt
     return clouds, skipped
+
+
+def _outputs(
+    args: argparse.Namespace, message, estimator, output_key: tuple[str, str], stop: threading.Event, warn: Callable
+) -> tuple[list, bool]:
+    """What one input message puts in OUT (itself unless --no-copy; for a cloud, the cloud with normals), and whether
+    it was a cloud that had to be skipped (`warn` gets the line saying why)."""
+    outputs = [] if args.no_copy else [((message.topic, message.msgtype), message.timestamp, message.raw)]
+    if message.topic != args.topic:
+        return outputs, False
+    try:
+        outputs.append((output_key, message.timestamp, _with_normals(estimator, message, args, stop)))
+    except (CloudFormatError, EstimatorError) as error:
+        warn(f"triplet-normal: warning: skipped the cloud at {message.timestamp} ns: {error}", file=sys.stderr)
+        return outputs, True
+    return outputs, False
 
 
 @contextmanager
@@ -195,7 +268,7 @@ def _ctrl_c() -> Iterator[threading.Event]:
         signal.signal(signal.SIGINT, previous)
 
 
-def _with_normals(estimator, message, viewpoint, stop: threading.Event) -> memoryview:
+def _with_normals(estimator, message, args: argparse.Namespace, stop: threading.Event) -> memoryview:
     """The output message for one input cloud, as the node builds it (empty clouds stay empty, with the fields)."""
     from ..io.bags import decode_cloud, encode_cloud
     from ..io.pointcloud2 import read_xyz
@@ -204,15 +277,20 @@ def _with_normals(estimator, message, viewpoint, stop: threading.Event) -> memor
     if cloud.height * cloud.width == 0:
         return encode_cloud(cloud, None, None)
     points = read_xyz(cloud)
-    normals, curvature = _estimate(estimator, points, (cloud.height, cloud.width), viewpoint, stop)
+    normals, curvature = _estimate(estimator, points, (cloud.height, cloud.width), args, stop)
     return encode_cloud(cloud, normals, curvature)
 
 
-def _estimate(estimator, points: np.ndarray, shape, viewpoint, stop: threading.Event) -> tuple[np.ndarray, np.ndarray]:
+def _estimate(
+    estimator, points: np.ndarray, shape: tuple[int, int], args: argparse.Namespace, stop: threading.Event
+) -> tuple[np.ndarray, np.ndarray]:
     """Normals and curvature for every point by the node's per-cloud step."""
     from ..core.cloud import estimate_cloud
 
-    result = estimate_cloud(estimator, points, shape=shape, viewpoint=viewpoint, cancel=stop)
+    viewpoint = None if args.no_orient else args.viewpoint
+    result = estimate_cloud(
+        estimator, points, shape=shape, viewpoint=viewpoint, cancel=stop, zeros_are_no_returns=not args.keep_zeros
+    )
     return result.normals, result.curvature
 
 
@@ -240,4 +318,9 @@ def _job(args: argparse.Namespace, bag, output_topic: str, storage: str) -> dict
         "bend": args.bend,
         "neighbours": args.neighbours,
         "viewpoint": None if args.no_orient else list(args.viewpoint),
+        "keep_zeros": args.keep_zeros,
+        "range_scale": args.range_scale,
+        "start": args.start or 0.0,  # --start 0 reads what no --start reads
+        "end": args.end,
+        "limit": args.limit,
     }

@@ -17,7 +17,8 @@ PROGRESS_MIN_POINTS = 20_000
 DESCRIPTION = """Estimate unit normals (and PCA curvature) for one point cloud. Normal signs are arbitrary unless
 --viewpoint is given, which flips each normal to face that point (PCL's flipNormalTowardsViewpoint).
 Without --out the normals go to IN with suffix .normals (never overwriting an existing file).
-Rows for points with fewer than 3 neighbours within the radius are NaN. See docs/CLI.md."""
+Rows are NaN for points with fewer than 3 neighbours within the radius, whose neighbours determine no plane, or at
+exactly (0, 0, 0) (a LiDAR's no-returns; --keep-zeros to keep them). See docs/CLI.md."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -54,6 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--batch-size", type=int, metavar="B", help="patches per network call (default: the estimator's)")
     checks.add_hybrid_options(p)
+    checks.add_sensor_options(p)
     p.add_argument(
         "--neighbours",
         choices=NEIGHBOUR_SEARCHES,
@@ -67,6 +69,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Read IN, estimate at all points or at --indices, orient if asked, write OUT, print one summary line."""
+    from ..core.cloud import without_no_returns
     from ..core.conventions import bbox_diagonal
     from ..io.cloud_files import read_cloud, read_indices, write_normals
 
@@ -78,8 +81,9 @@ def run(args: argparse.Namespace) -> int:
     if not radius > 0:
         raise UsageError(f"{args.input}: the cloud has zero extent, so --radius-rel gives radius 0; pass --radius")
     estimator = checks.make_estimator(args, radius)
+    points = cloud.points if args.keep_zeros else without_no_returns(cloud.points)
     start = time.perf_counter()
-    normals, curvature = estimate_with_progress(estimator, cloud.points, query, shape=(cloud.height, cloud.width))
+    normals, curvature = estimate_with_progress(estimator, points, query, shape=(cloud.height, cloud.width))
     seconds = time.perf_counter() - start
     if args.viewpoint is not None:
         from ..core.orientation import orient_towards_viewpoint
@@ -122,6 +126,7 @@ def _check(args: argparse.Namespace) -> None:
     if args.viewpoint is not None and not np.isfinite(args.viewpoint).all():
         raise UsageError(f"--viewpoint must be three finite numbers, got {args.viewpoint}")
     checks.hybrid_options(args)
+    checks.range_scale(args.range_scale)
     checks.device(args.device)
 
 

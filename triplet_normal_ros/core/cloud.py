@@ -1,7 +1,8 @@
 """The per-cloud step: one whole cloud in, one normal and curvature per point out, oriented.
 
-The node and `triplet-normal bag` both call `estimate_cloud`, so a cloud gets the same answer from each: which points
-count, the empty and all-hole shortcuts, the estimate itself, and the viewpoint flip live here once.
+The node, `triplet-normal bag` and `triplet-normal estimate` call `estimate_cloud`, so a cloud gets the same answer
+from each: which points count (no-return zeros, a validity mask), the empty and all-hole shortcuts, the estimate
+itself, and the viewpoint flip live here once.
 """
 
 from __future__ import annotations
@@ -38,27 +39,46 @@ def estimate_cloud(
     valid: np.ndarray | None = None,
     viewpoint: Sequence[float] | None = (0.0, 0.0, 0.0),
     cancel: threading.Event | None = None,
+    zeros_are_no_returns: bool = True,
 ) -> CloudNormals:
     """Normals and curvature for every point of `points` (N, 3); NaN rows where no normal can be trusted.
 
     `shape` = (height, width) marks an organized cloud (rows of a depth image or of a LiDAR's beams), which lets the
     estimator use its pixel grid. `valid` (N,) bool, when given, excludes points that are neither neighbours nor
-    queries (they get NaN), on top of the non-finite ones. `viewpoint` is where normals face (PCL's
+    queries (they get NaN), on top of the non-finite ones. `zeros_are_no_returns` excludes points at exactly
+    (0, 0, 0) likewise: LiDAR drivers (Ouster, Velodyne, Hesai) store a pixel without a return there in organized
+    clouds, and a sensor never measures its own origin. `viewpoint` is where normals face (PCL's
     flipNormalTowardsViewpoint); None leaves the signs as estimated. A set `cancel` stops between batches with
     `EstimationCancelled`.
     """
     points = np.asarray(points)
     if valid is not None:
-        valid = np.asarray(valid)
-        if valid.shape != points.shape[:1] or valid.dtype != bool:
-            raise EstimatorError(f"valid must be an ({len(points)},) bool mask, got {valid.dtype} {valid.shape}")
-        points = np.where(valid[:, None], points, np.nan)
+        valid = _checked_mask(valid, len(points))
+        points = np.where(valid[:, None], points, np.nan) if not valid.all() else points
+    if zeros_are_no_returns:
+        points = without_no_returns(points)
     if len(points) == 0 or not np.isfinite(points).all(axis=1).any():
         return _unknown(len(points))
     normals, curvature = estimator.estimate(points, cancel=cancel, shape=shape)
     if viewpoint is not None:
         normals = orient_towards_viewpoint(points, normals, viewpoint)
     return CloudNormals(normals, curvature)
+
+
+def without_no_returns(points: np.ndarray) -> np.ndarray:
+    """`points` with every row at exactly (0, 0, 0) made NaN (a hole), or `points` itself when there is none."""
+    points = np.asarray(points)
+    if points.ndim != 2 or len(points) == 0:
+        return points
+    zero = ~points.any(axis=1)  # NaN counts as non-zero: it stays a hole either way
+    return np.where(zero[:, None], np.nan, points) if zero.any() else points
+
+
+def _checked_mask(valid: np.ndarray, n: int) -> np.ndarray:
+    valid = np.asarray(valid)
+    if valid.shape != (n,) or valid.dtype != bool:
+        raise EstimatorError(f"valid must be an ({n},) bool mask, got {valid.dtype} {valid.shape}")
+    return valid
 
 
 def _unknown(n: int) -> CloudNormals:

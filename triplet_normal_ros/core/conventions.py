@@ -16,6 +16,10 @@ RADIUS_FRACTION = 0.05
 #: The metric radii of the simulated range sets, in training and evaluation alike: 5 cm on depth frames, as robots
 #: use; on 32-beam LiDAR scans the rings are ~1.3° apart, so a ball must span several of them: 25 cm.
 DEPTH_RADIUS, LIDAR_RADIUS = 0.05, 0.25
+#: ... and beyond 8 m the LiDAR ball grows with range, to 0.03 × the range (`NormalEstimator.range_scale`): windows
+#: then span about three beams of a 32-beam scanner at any range, and more of denser ones (docs/RESULTS.md, "LiDAR
+#: neighbourhoods").
+LIDAR_RANGE_SCALE = 0.03
 #: Fewer neighbours than this inside the ball gives a NaN row (PCL's convention: a plane needs three points).
 MIN_NEIGHBOURS = 3
 #: Hybrid sends a point to the network when a quadric explains its neighbourhood better than the PCA plane by more than

@@ -24,6 +24,11 @@ K = 0
 GATE = HYBRID_GATE
 BEND = HYBRID_BEND
 NEIGHBOURS = "auto"
+#: The ball keeps its radius at every range: right for depth cameras. config/lidar.yaml grows it with range.
+RANGE_SCALE = 0.0
+#: A point at exactly (0, 0, 0) is a LiDAR's no-return (Ouster, Velodyne and Hesai drivers store them so in organized
+#: clouds): never a neighbour, NaN normal. A sensor never measures its own origin, so this costs a depth camera nothing.
+ZEROS_ARE_NO_RETURNS = True
 #: Normals face the viewpoint (PCL's flipNormalTowardsViewpoint); the origin of the cloud's frame is the sensor.
 ORIENT = True
 VIEWPOINT = (0.0, 0.0, 0.0)

@@ -32,7 +32,7 @@ from .conventions import (
     POOL_FACTOR,
 )
 from .device import resolve_device
-from .frames import masked_covariance, principal_frames, quadric_gain, surface_variation
+from .frames import masked_covariance, principal_frames, quadric_gain, spans_plane, surface_variation
 from .integral import MomentImage, ray_noise_normal, smallest_eigenvector
 from .neighbours import NeighbourIndex
 from .organized import GridIndex
@@ -46,6 +46,9 @@ PCA_CHUNK = 16384
 #: LiDAR's 3-beam windows keep the survey, which measured 0.86 × pool PCA's MSAE on eval's scans; 5 sent them to pools
 #: and measured 1.01 ×).
 PART_SPAN = 3
+#: With a range_scale, pools are searched at radius × RADIUS_STEP^j, the smallest step that holds a point's grown
+#: ball: one search radius per chunk, at most 19 % wider than asked.
+RADIUS_STEP = 2 ** 0.25
 
 
 @dataclass
@@ -82,6 +85,7 @@ class NormalEstimator:
         gate: float = HYBRID_GATE,
         neighbours: str = "auto",
         bend: float = HYBRID_BEND,
+        range_scale: float = 0.0,
     ) -> None:
         if method not in METHODS:
             raise EstimatorError(f"method must be one of {METHODS}, got {method!r}")
@@ -101,6 +105,7 @@ class NormalEstimator:
         self.gate = gate
         self.bend = bend
         self.neighbours = neighbours
+        self.range_scale = range_scale
         self.last_run = RunInfo()
 
     @property
@@ -112,6 +117,19 @@ class NormalEstimator:
         if not (_is_real(value) and np.isfinite(value) and value > 0):
             raise EstimatorError(f"radius must be a finite number > 0, got {value!r}")
         self._radius = float(value)
+
+    @property
+    def range_scale(self) -> float:
+        """The ball grows with range: a point's radius is max(radius, range_scale × its distance from the cloud
+        frame's origin, the sensor); 0 keeps every ball at `radius`. A spinning LiDAR's rings part with range, so a
+        fixed ball holds one ring (a line, no normal) beyond a few metres (README, "Sensor presets")."""
+        return self._range_scale
+
+    @range_scale.setter
+    def range_scale(self, value: float) -> None:
+        if not (_is_real(value) and np.isfinite(value) and 0 <= value <= 1):
+            raise EstimatorError(f"range_scale must be a number in [0, 1], got {value!r}")
+        self._range_scale = float(value)
 
     @property
     def k(self) -> int:
@@ -170,7 +188,9 @@ class NormalEstimator:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Normals (M, 3) and curvature (M,), float32, at `query` indices (default: every point).
 
-        Rows are NaN where the query point is non-finite or has fewer than 3 neighbours within the radius.
+        Rows are NaN where the query point is non-finite, has fewer than 3 neighbours within the radius, or where
+        those neighbours determine no plane: collinear or coincident (`frames.spans_plane`), or, on an organized
+        cloud, all on one row or one column of the image (one scan line).
         Normal signs are arbitrary; see `orientation.orient_towards_viewpoint`. `progress(n)` is called with the
         number of query rows finished after each chunk (non-finite ones count at once), for a progress bar.
         `shape` = (height, width) of an organized cloud lets neighbours come from its pixel grid (see `organized`).
@@ -199,23 +219,43 @@ class NormalEstimator:
             progress(len(query) - len(todo))
         chunk = PCA_CHUNK if self.method == "pca" else CHUNK
         run = {"pca": self._pca_chunk, "learned": self._learned_chunk, "hybrid": self._hybrid_chunk}[self.method]
-        for out, answer, answer_curvature in self._over_pools(search, cloud, query, todo, run, chunk, cancel, timings):
+        width = shape[1] if is_organized(shape, len(points)) else None
+        chunks = self._over_pools(search, cloud, query, todo, run, chunk, cancel, timings, width)
+        for out, answer, answer_curvature in chunks:
             normals[out], curvature[out] = answer, answer_curvature
             if progress is not None:
                 progress(len(out))
         return normals, curvature
 
-    def _over_pools(self, search, cloud, query, todo, run, chunk, cancel, timings):
+    def _over_pools(self, search, cloud, query, todo, run, chunk, cancel, timings, width=None):
         """For each chunk of the `todo` positions of `query`: (positions, normals, curvature) from `run` over the
-        chunk's pools; raises EstimationCancelled between chunks once `cancel` is set."""
-        for lo in range(0, len(todo), chunk):
-            if cancel is not None and cancel.is_set():
-                raise EstimationCancelled("estimation cancelled")
-            out = todo[lo : lo + chunk]
-            rows = torch.from_numpy(query[out]).to(self.device)
-            with _timed(timings, "neighbours"):
-                pool = search.pool(rows, self.radius, self._pool_size())
-            yield (out, *run(cloud, cloud[rows], pool, rows, cancel, timings))
+        chunk's pools, NaN where an organized cloud's pool (`width` pixels per row) lies on one scan line; raises
+        EstimationCancelled between chunks once `cancel` is set."""
+        for radius, group in self._radius_groups(cloud, query, todo):
+            for lo in range(0, len(group), chunk):
+                if cancel is not None and cancel.is_set():
+                    raise EstimationCancelled("estimation cancelled")
+                out = group[lo : lo + chunk]
+                rows = torch.from_numpy(query[out]).to(self.device)
+                with _timed(timings, "neighbours"):
+                    pool = search.pool(rows, radius, self._pool_size())
+                normals, curvature = run(cloud, cloud[rows], pool, rows, radius, cancel, timings)
+                if width is not None:
+                    line = one_scan_line(pool, width).cpu().numpy()
+                    normals[line], curvature[line] = np.nan, np.nan
+                yield out, normals, curvature
+
+    def _radius_groups(self, cloud: torch.Tensor, query: np.ndarray, todo: np.ndarray) -> Iterator[tuple]:
+        """(radius, positions of `todo`) pairs: every point at `radius`, or with a range_scale, the points grouped
+        by their grown ball, rounded up to steps of RADIUS_STEP (pools are searched one radius per chunk)."""
+        if self.range_scale == 0 or len(todo) == 0:
+            yield self.radius, todo
+            return
+        ranges = cloud[torch.from_numpy(query[todo]).to(cloud.device)].norm(dim=1).cpu().numpy()
+        grown = np.maximum(self.radius, self.range_scale * ranges) / self.radius
+        steps = np.ceil(np.log(grown) / np.log(RADIUS_STEP) - 1e-9).astype(np.int64)
+        for step in np.unique(steps):
+            yield self.radius * RADIUS_STEP ** int(step), todo[steps == step]
 
     def _window_applies(self, shape: tuple[int, int] | None, n: int) -> bool:
         """The integral-image path answers pca on an organized cloud when asked ('window'), and by default ('auto')
@@ -230,7 +270,7 @@ class NormalEstimator:
         self, image: MomentImage, query: np.ndarray, progress: Callable[[int], None] | None
     ) -> tuple[np.ndarray, np.ndarray]:
         """PCA of every pixel's window at once (see integral.py), then the query's rows."""
-        fit = image.pca(self.radius)
+        fit = image.pca(self.radius, self.range_scale)
         self.last_run = RunInfo("window", int(image.finite.reshape(-1)[torch.from_numpy(query)].sum()))
         valid = fit.valid & image.finite.reshape(-1)
         normals, curvature = _finish(fit.normal, surface_variation(fit.eigvals), valid)
@@ -245,11 +285,12 @@ class NormalEstimator:
         A window less than PART_SPAN pixels across on either axis (a spinning LiDAR's beams at range, a sliver beside
         an edge) cannot be cut into parts, so the cue is blind there; nor is a window that walls cut below three
         points a fit. Those points take the pool path's own hybrid (pool PCA, the quadric gate, the network where it
-        opens), as they would without a grid, and the pool's curvature."""
+        opens), as they would without a grid, and the pool's curvature; where the pool determines no plane (one
+        LiDAR ring in the ball) a thin window that does keeps its own answer."""
         with _timed(timings, "survey"):
-            fit = image.pca(self.radius)
+            fit = image.pca(self.radius, self.range_scale)
             survey = ray_noise_normal(fit)
-            cue = image.structure(fit, self.radius, survey)
+            cue = image.structure(fit, survey)
             finite = image.finite.reshape(-1)
             valid = fit.valid & finite
             top, bottom, left, right = fit.box
@@ -269,13 +310,12 @@ class NormalEstimator:
         with _timed(timings, "neighbours"):
             search = open_search(points, cloud, shape, self.neighbours, self.device)
         for todo, run in ((network, self._learned_chunk), (pooled, self._hybrid_chunk)):
-            chunks = self._over_pools(search, cloud, query, todo, run, CHUNK, cancel, timings)
+            chunks = self._over_pools(search, cloud, query, todo, run, CHUNK, cancel, timings, shape[1])
             for out, answer, pool_curvature in chunks:
                 answered = np.isfinite(answer).all(axis=1)
                 normals[out[answered]] = answer[answered]
                 if todo is pooled:  # a thin window's curvature is a sliver's; the pool's is the ball's
-                    curvature[out] = pool_curvature
-                    normals[out[~answered]] = np.nan
+                    curvature[out[answered]] = pool_curvature[answered]
                 if progress is not None:
                     progress(len(out))
         return normals, curvature
@@ -285,33 +325,35 @@ class NormalEstimator:
         KD-tree and the cell lists; a uniform sample of the ball of about that size, on the pixel grid)."""
         return self.k if self.method == "pca" else POOL_FACTOR * self.k
 
-    def _pca_chunk(self, cloud, centres, pool, rows, _cancel, timings) -> tuple[np.ndarray, np.ndarray]:
+    def _pca_chunk(self, cloud, centres, pool, rows, _radius, _cancel, timings) -> tuple[np.ndarray, np.ndarray]:
         """PCA of each pool (`_pool_normals`: the normal and eigenvalues only, no frame); `cancel` is not needed."""
         with _timed(timings, "pca"):
             normal, eigvals, valid = _pool_normals(cloud, centres, pool, rows)
-            return _finish(normal, surface_variation(eigvals), valid)
+            return _finish(normal, surface_variation(eigvals), valid & spans_plane(eigvals))
 
     @torch.inference_mode()
-    def _learned_chunk(self, cloud, centres, pool, rows, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
+    def _learned_chunk(self, cloud, centres, pool, rows, radius, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
         with _timed(timings, "patches"):
             patches = build_patches(
-                cloud, centres, pool, self.radius, self.k, centre_ids=rows, seed=self.seed, **self._fit_options()
+                cloud, centres, pool, radius, self.k, centre_ids=rows, seed=self.seed, **self._fit_options()
             )
         local = self._network(patches, cancel, timings)
         self.last_run.network += len(centres)
-        return _finish(to_world(local, patches.rotation), patches.curvature, patches.valid)
+        valid = patches.valid & spans_plane(patches.eigvals)
+        return _finish(to_world(local, patches.rotation), patches.curvature, valid)
 
     @torch.inference_mode()
-    def _hybrid_chunk(self, cloud, centres, pool, rows, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
+    def _hybrid_chunk(self, cloud, centres, pool, rows, radius, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
         """PCA of the whole pool everywhere (the learned method's own frame); the network where a quadric explains
         the neighbourhood significantly (F > gate) and substantially (bend > bend) better than that plane
         (`frames.quadric_gain`)."""
         with _timed(timings, "pca"):
             local, mask, valid, eigvals, frame = _pool_pca(cloud, centres, pool)
+            valid &= spans_plane(eigvals)
             curvature = surface_variation(eigvals)
             normal = frame[:, 2].clone()
         with _timed(timings, "gate"):
-            gain = quadric_gain(local / self.radius, mask, frame)
+            gain = quadric_gain(local / radius, mask, frame)
             structured = (gain.f > self.gate) & (gain.bend > self.bend)
             gated = torch.nonzero(valid & structured).squeeze(1)
         if len(gated):
@@ -320,7 +362,7 @@ class NormalEstimator:
                     cloud,
                     centres[gated],
                     pool[gated],
-                    self.radius,
+                    radius,
                     self.k,
                     centre_ids=rows[gated],
                     seed=self.seed,
@@ -380,6 +422,19 @@ def search_choice(neighbours: str, device_type: str, organized: bool) -> str:
     if neighbours == "voxel" or on_gpu:
         return "voxel"
     return "kdtree"
+
+
+def one_scan_line(pool: torch.Tensor, width: int) -> torch.Tensor:
+    """(M,) bool: whether each -1 padded pool of an organized cloud `width` pixels wide lies within one image row or
+    one image column: one scan line of a LiDAR (or a sliver of pixels), collinear whatever its noise says."""
+    mask = pool >= 0
+    row, col = torch.div(pool, width, rounding_mode="floor"), pool % width
+    big = torch.iinfo(pool.dtype).max
+
+    def flat(index: torch.Tensor) -> torch.Tensor:
+        return torch.where(mask, index, big).amin(dim=1) == torch.where(mask, index, -1).amax(dim=1)
+
+    return mask.any(dim=1) & (flat(row) | flat(col))
 
 
 def is_organized(shape: tuple[int, int] | None, n: int) -> bool:

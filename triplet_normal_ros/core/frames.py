@@ -33,6 +33,20 @@ def principal_frames(cov: torch.Tensor, valid: torch.Tensor) -> tuple[torch.Tens
     return eigvals.clamp_min(0.0), torch.stack((x_axis, y_axis, z_axis), dim=1)
 
 
+#: A neighbourhood whose middle eigenvalue is at most this fraction of its largest lies along a line (or its points
+#: coincide): the plane through it may turn freely about that line, so its normal is unknown and the estimator
+#: answers NaN, where PCL and Open3D publish an arbitrary axis. 1e-2 is a strip a tenth as wide as it is long: a cable,
+#: a sliver beside an edge, one scan line of a LiDAR with its range noise (docs/RESULTS.md, "Degenerate
+#: neighbourhoods", measures what it removes).
+COLLINEAR_RATIO = 1e-2
+
+
+def spans_plane(eigvals: torch.Tensor) -> torch.Tensor:
+    """(..., 3) ascending eigenvalues -> (...) bool: whether the neighbourhood spreads in two directions, so that a
+    plane, and with it a normal, is determined (see COLLINEAR_RATIO)."""
+    return eigvals[..., 1] > COLLINEAR_RATIO * eigvals[..., 2]
+
+
 def surface_variation(eigvals: torch.Tensor) -> torch.Tensor:
     """PCL's curvature λ0 / (λ0 + λ1 + λ2); 0 for a degenerate (all coincident) neighbourhood."""
     total = eigvals.sum(dim=-1)

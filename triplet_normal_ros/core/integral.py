@@ -26,6 +26,7 @@ from typing import NamedTuple
 import torch
 
 from .conventions import MIN_NEIGHBOURS
+from .frames import spans_plane
 from .organized import ray_pitch
 
 #: A square window of half-width h covers the area of a disc of radius h × 2 / sqrt(pi); windows are sized to the
@@ -38,6 +39,11 @@ JUMP_RADIUS_FRACTION = 1.0
 #: the range noise of a far surface (centimetres at 4 m for a Kinect) from reading as walls. Measured on simulated
 #: depth frames of seeds eval does not score: 0.02 shrank most far windows to a few pixels (MSAE 0.141 against 0.055).
 JUMP_RANGE_FRACTION = 0.04
+#: ... or, larger still, by more than a surface seen this obliquely (tan 85°) moves in range between two adjacent rays
+#: of the axis: a spinning LiDAR's beams lie a degree apart, so the ground a few metres out steps in range by a tenth
+#: of it from one beam to the next and is still one surface. A depth camera's rays lie 1.6 mrad apart: 0.018 of the
+#: range, under JUMP_RANGE_FRACTION, so its walls stand where they did.
+GRAZING_TAN = math.tan(math.radians(85.0))
 #: How many steps a window shrinks in while a wall crosses it (a binary search over these levels).
 SHRINK_LEVELS = 16
 #: The one-sided windows a pixel beside a wall also tries, as (up, down, left, right) reach: four half windows, then
@@ -49,19 +55,23 @@ ONE_SIDED = (
 #: Below this length (the matrix scaled to unit trace) the largest cross product of two rows of A - λ0 I says no
 #: plane: the smallest eigenvalue is repeated, and the eigenvector answer is NaN rather than an arbitrary axis.
 DEGENERATE_CROSS = 1e-10
-#: Channels of the summed-area table: count, x, y, z, xx, xy, xz, yy, yz, zz.
-_CHANNELS = 10
+#: Channels of the summed-area table: count, x, y, z, xx, xy, xz, yy, yz, zz, and the pixel row and column with
+#: their squares (whether a window's points span more than one row and one column).
+_CHANNELS = 14
 
 
 @dataclass(frozen=True)
 class WindowPCA:
     """Per pixel (flattened, H·W): the normal (smallest principal axis), ascending eigenvalues, window count, and
-    whether the window held at least MIN_NEIGHBOURS valid points. Rows that are not `valid` carry garbage."""
+    whether the window determines a plane: at least MIN_NEIGHBOURS valid points, spread over more than one image row
+    and column (one row of a range image is one scan line: collinear, whatever its noise says) and in two directions
+    (`frames.spans_plane`). Rows that are not `valid` carry garbage."""
 
     normal: torch.Tensor  # (N, 3) float64
     eigvals: torch.Tensor  # (N, 3) float64, ascending
     count: torch.Tensor  # (N,) float64
     valid: torch.Tensor  # (N,) bool
+    reach: torch.Tensor | float  # the ball radius the window stands for: the radius, or per pixel (N,) with range_scale
     mean: torch.Tensor  # (N, 3) float64: the window's centroid (cloud coordinates)
     cov: torch.Tensor  # (N, 6) float64: the covariance's upper triangle (a00, a01, a02, a11, a12, a22)
     box: tuple[torch.Tensor, ...]  # (top, bottom, left, right) (N,) each: the window each pixel used
@@ -73,7 +83,7 @@ class Structure(NamedTuple):
     #: Largest |height| of a part's centroid above the window's plane over the part's noise standard error: is the
     #: departure significant? About 1-3 on any plane, whatever its noise; large across a fold or an edge.
     z: torch.Tensor
-    #: That largest height in units of the radius: is the departure large?
+    #: That largest height in units of the window's reach (the radius): is the departure large?
     bend: torch.Tensor
 
 
@@ -109,18 +119,33 @@ class MomentImage:
     def _moments(self) -> torch.Tensor:
         x, y, z = self.points.unbind(dim=-1)
         one = self.finite.to(torch.float64)
-        return torch.stack((one, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z), dim=-1)
+        row, col = (i.view_as(one) * one for i in _pixel_grid(self.height, self.width, self.device))
+        return torch.stack((one, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z, row, row * row, col, col * col), -1)
 
-    def pca(self, radius: float) -> WindowPCA:
-        """Window PCA of every pixel at the metric `radius`, with windows that cross no depth discontinuity."""
-        half_row, half_col = self._half_widths(radius)
-        walls = _WallTable(self.range, _jump_threshold(self.range, radius))
+    def pca(self, radius: float, range_scale: float = 0.0) -> WindowPCA:
+        """Window PCA of every pixel at the metric `radius`, with windows that cross no depth discontinuity; with a
+        `range_scale` > 0 each pixel's ball grows to max(radius, range_scale × its range) (a spinning LiDAR's rings
+        part with range)."""
+        reach = float(radius) if range_scale == 0 else (self.range * range_scale).clamp_min(radius)
+        half_row, half_col = self._half_widths(reach)
+        walls = _WallTable(self.range, *self._jump_thresholds(reach))
         box = _largest_clear_boxes(half_row, half_col, walls, self.height, self.width)
         box = _one_sided_where_shrunk(box, half_row, half_col, walls, self.counts, self.height, self.width)
         sums = _box_sums(self.table, *box)
-        return _window_pca(sums, self.offset, box)
+        flat = reach if isinstance(reach, float) else torch.nan_to_num(reach.reshape(-1), nan=radius)
+        return _window_pca(sums, self.offset, box, flat)
 
-    def structure(self, fit: WindowPCA, radius: float, normal: torch.Tensor | None = None) -> Structure:
+    def _jump_thresholds(self, reach: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
+        """The range step that makes a wall between adjacent pixels along a row (between columns) and along a column
+        (between rows): the ball's reach, JUMP_RANGE_FRACTION of the range, or a grazing surface's step, the largest."""
+        floor = torch.as_tensor(reach, dtype=torch.float64, device=self.device) * JUMP_RADIUS_FRACTION
+        thresholds = []
+        for pitch in (self.pitch_col.view(1, -1), self.pitch_row.view(-1, 1)):
+            fraction = (GRAZING_TAN * pitch.to(torch.float64)).clamp_min(JUMP_RANGE_FRACTION)
+            thresholds.append(torch.maximum(self.range * fraction, floor))
+        return thresholds[0], thresholds[1]
+
+    def structure(self, fit: WindowPCA, normal: torch.Tensor | None = None) -> Structure:
         """The O(1) cue of hybrid's gate: where a quadric would beat the plane, parts of the window sit off it.
 
         Each window is cut into five parts (its upper, lower, left and right halves, and its central quarter). On a
@@ -162,12 +187,12 @@ class MomentImage:
             spread = torch.sqrt(noise * (1 / n.clamp_min(1) - 1 / fit.count.clamp_min(1)).clamp_min(0))
             ok = (n >= MIN_NEIGHBOURS) & (n < fit.count)
             z = torch.where(ok, torch.maximum(z, height / spread.clamp_min(1e-12)), z)
-            bend = torch.where(ok, torch.maximum(bend, height / radius), bend)
+            bend = torch.where(ok, torch.maximum(bend, height / fit.reach), bend)
         return Structure(z, bend)
 
-    def _half_widths(self, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
+    def _half_widths(self, reach: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
         """Half-widths in pixels per axis: the ball's angular radius over each axis' angular step (0 for holes)."""
-        angle = torch.asin((radius / self.range).clamp(max=1.0)) * AREA_MATCH
+        angle = torch.asin((reach / self.range).clamp(max=1.0)) * AREA_MATCH
         per_row = self.pitch_row.to(angle.dtype).view(-1, 1)
         per_col = self.pitch_col.to(angle.dtype).view(1, -1)
         rows = torch.nan_to_num(torch.round(angle / per_row), nan=0.0).clamp(0, float(self.height))
@@ -203,9 +228,9 @@ class _WallTable:
     window may reach into the holes on its own side but not through them to the other surface.
     """
 
-    def __init__(self, ranges: torch.Tensor, threshold: torch.Tensor) -> None:
-        self.cols = _summed_area(_jumps(ranges, threshold).unsqueeze(-1))  # (H+1, W, 1): walls after column c
-        self.rows = _summed_area(_jumps(ranges.T, threshold.T).T.unsqueeze(-1))  # (H, W+1, 1): walls after row r
+    def __init__(self, ranges: torch.Tensor, along_row: torch.Tensor, along_col: torch.Tensor) -> None:
+        self.cols = _summed_area(_jumps(ranges, along_row).unsqueeze(-1))  # (H+1, W, 1): walls after column c
+        self.rows = _summed_area(_jumps(ranges.T, along_col.T).T.unsqueeze(-1))  # (H, W+1, 1): walls after row r
 
     def crossed(self, top, bottom, left, right) -> torch.Tensor:
         """Whether any wall lies strictly inside each box (walls on its border separate it from the outside)."""
@@ -233,10 +258,6 @@ def _jumps(ranges: torch.Tensor, threshold: torch.Tensor) -> torch.Tensor:
     other, other_threshold = ranges.gather(1, nxt), threshold.gather(1, nxt)
     jump = has_next & ((ranges - other).abs() > torch.maximum(threshold, other_threshold))
     return jump[:, :-1].to(torch.float64)
-
-
-def _jump_threshold(ranges: torch.Tensor, radius: float) -> torch.Tensor:
-    return torch.clamp(ranges * JUMP_RANGE_FRACTION, min=radius * JUMP_RADIUS_FRACTION)
 
 
 def _pixel_grid(height: int, width: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
@@ -310,17 +331,26 @@ def _one_sided_where_shrunk(box, half_row, half_col, walls: _WallTable, counts, 
     return tuple(best)
 
 
-def _window_pca(sums: torch.Tensor, offset: torch.Tensor, box: tuple[torch.Tensor, ...]) -> WindowPCA:
-    """Mean, covariance and its closed-form eigen-decomposition from the 10 moment sums (M, 10) of each window."""
+def _window_pca(
+    sums: torch.Tensor, offset: torch.Tensor, box: tuple[torch.Tensor, ...], reach: torch.Tensor | float
+) -> WindowPCA:
+    """Mean, covariance and its closed-form eigen-decomposition from the moment sums (M, _CHANNELS) of each window."""
     count = sums[:, 0]
-    moments = sums[:, 1:] / count.clamp_min(1.0).unsqueeze(-1)
+    moments = sums[:, 1:10] / count.clamp_min(1.0).unsqueeze(-1)
     mean, second = moments[:, :3], moments[:, 3:]
     mx, my, mz = mean.unbind(dim=-1)
     outer = torch.stack((mx * mx, mx * my, mx * mz, my * my, my * mz, mz * mz), dim=-1)
     cov = second - outer
     eigvals, normal = smallest_eigenvector(cov)
-    valid = (count >= MIN_NEIGHBOURS) & torch.isfinite(normal).all(dim=-1)
-    return WindowPCA(normal, eigvals, count, valid, mean + offset, cov, box)
+    lines = _spans_lines(count, sums[:, 10:12]) & _spans_lines(count, sums[:, 12:14])
+    valid = (count >= MIN_NEIGHBOURS) & torch.isfinite(normal).all(dim=-1) & lines & spans_plane(eigvals)
+    return WindowPCA(normal, eigvals, count, valid, reach, mean + offset, cov, box)
+
+
+def _spans_lines(count: torch.Tensor, index_sums: torch.Tensor) -> torch.Tensor:
+    """Whether a window's points lie on more than one row (or column): n Σi² - (Σi)² is n² times the variance of
+    their integer indices, a whole number at least n - 1 when they differ (exact below 2^53, ample beyond)."""
+    return count * index_sums[:, 1] - index_sums[:, 0].square() > 0.5
 
 
 def ray_noise_normal(fit: WindowPCA) -> torch.Tensor:

@@ -23,6 +23,7 @@ class Patches:
     valid: torch.Tensor  # (B,) bool: at least MIN_NEIGHBOURS neighbours
     pca_normal: torch.Tensor  # (B, 3) world frame, the smallest principal axis of the whole pool
     curvature: torch.Tensor  # (B,) surface variation of the whole pool
+    eigvals: torch.Tensor  # (B, 3) ascending eigenvalues of the whole pool (units of r²): is it a plane at all?
     scales: ScaleFits | None = None  # plane fits at the model's scales, for a scale head (see scales.py)
 
 
@@ -69,6 +70,7 @@ def build_patches(
         valid=valid,
         pca_normal=frame[:, 2],
         curvature=surface_variation(eigvals),
+        eigvals=eigvals,
         scales=scale_fits(local, mask, rot, tuple(scales), tuple(inlier_seeds), POOL_FACTOR * k) if scales else None,
     )
 

@@ -214,7 +214,7 @@ def run(
         if kind not in sets:
             continue
         start = time.perf_counter()
-        estimators = range_eval.range_estimators(checkpoint, device, radius=spec.radius)
+        estimators = range_eval.range_estimators(checkpoint, device, radius=spec.radius, range_scale=spec.range_scale)
         scores, summary = range_eval.evaluate_set(kind, estimators, quick)
         markdown = range_eval.set_markdown(kind, scores, summary, header.split("\n")[0])
         markdown += f"\n\nWall time {(time.perf_counter() - start) / 60:.1f} min."

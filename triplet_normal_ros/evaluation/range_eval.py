@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.conventions import DEPTH_RADIUS, LIDAR_RADIUS, POOL_FACTOR
+from ..core.conventions import DEPTH_RADIUS, LIDAR_RADIUS, LIDAR_RANGE_SCALE, POOL_FACTOR
 from ..core.estimator import NormalEstimator
 from .metrics import angles_rad
 
@@ -31,12 +31,16 @@ class RangeSet:
     kind: str  # "depth" | "lidar"
     title: str
     radius: float
+    range_scale: float = 0.0  # the sensor preset's: config/lidar.yaml's growth of the ball with range
 
 
 SETS = {
     "depth": RangeSet("depth", "Kinect-like 640x480 depth frames", DEPTH_RADIUS),
     "lidar": RangeSet(
-        "lidar", "32-beam spinning-LiDAR scans (32x1800, 0.2° azimuth steps, 1.5 cm range noise)", LIDAR_RADIUS
+        "lidar",
+        "32-beam spinning-LiDAR scans (32x1800, 0.2° azimuth steps, 1.5 cm range noise)",
+        LIDAR_RADIUS,
+        LIDAR_RANGE_SCALE,
     ),
 }
 
@@ -59,13 +63,21 @@ class MethodScore:
 
 
 def range_estimators(
-    checkpoint: str | None, device: str, k: int | None = None, radius: float = DEPTH_RADIUS
+    checkpoint: str | None, device: str, k: int | None = None, radius: float = DEPTH_RADIUS, range_scale: float = 0.0
 ) -> dict[str, NormalEstimator]:
     """PCA at the k = 30 cap (Open3D's usual), PCA over the learned method's pool (through the KD-tree, so it stays
     that pool on a GPU too), PCA of the integral-image windows (what `pca` at its default k runs on an organized
     frame), learned, and hybrid (on these organized frames: the window survey); with the shipped default, also the
-    lite checkpoint learned and hybrid."""
+    lite checkpoint learned and hybrid. Every one grows its ball with `range_scale`."""
     from ..core.checkpoint import SHIPPED
+
+    rows = _range_rows(checkpoint, device, k, radius, SHIPPED)
+    for estimator in rows.values():
+        estimator.range_scale = range_scale
+    return rows
+
+
+def _range_rows(checkpoint, device: str, k: int | None, radius: float, shipped) -> dict[str, NormalEstimator]:
 
     learned = NormalEstimator("learned", radius=radius, checkpoint=checkpoint, device=device, k=k)
     hybrid = NormalEstimator("hybrid", radius=radius, checkpoint=checkpoint, device=device, k=k)
@@ -78,7 +90,7 @@ def range_estimators(
         "learned": learned,
         f"hybrid (F > {hybrid.gate:g}, bend > {hybrid.bend:g})": hybrid,
     }
-    if checkpoint is None and "lite" in SHIPPED:
+    if checkpoint is None and "lite" in shipped:
         rows["learned, lite"] = NormalEstimator("learned", radius=radius, checkpoint="lite", device=device)
         rows["hybrid, lite"] = NormalEstimator("hybrid", radius=radius, checkpoint="lite", device=device)
     return rows

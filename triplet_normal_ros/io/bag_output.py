@@ -59,7 +59,12 @@ def _open_writer(path: Path, storage: str, topics: Sequence[TopicSpec]) -> tuple
     writer.open()
     connections = {
         spec.key: writer.add_connection(
-            spec.topic, spec.msgtype, msgdef=spec.msgdef, rihs01=spec.digest, offered_qos_profiles=list(spec.qos)
+            spec.topic,
+            spec.msgtype,
+            msgdef=spec.msgdef,
+            rihs01=spec.digest,
+            serialization_format=spec.serialization_format,
+            offered_qos_profiles=list(spec.qos),
         )
         for spec in topics
     }

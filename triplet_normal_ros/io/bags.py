@@ -4,6 +4,9 @@
 :func:`..pointcloud2.read_xyz` decodes them as they are and :func:`..pointcloud2.with_normals` builds the output
 layout; only the outer message object is swapped, so the bag command and the node write the same bytes. Every
 failure to open or read a bag is one :class:`BagError` line naming the file.
+
+Topics are copied as raw bytes, which needs no message definition: a topic whose type the bag does not describe (a
+custom type recorded without its definition) is declared in the output as the input declares it.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from .pointcloud2 import empty_with_normals, with_normals
 
 __all__ = [
     "CLOUD_TYPE",
+    "NO_TYPE_HASH",
     "STORAGES",
     "BagError",
     "BagMessage",
@@ -44,6 +48,9 @@ CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
 STORAGES = ("sqlite3", "mcap")
 #: Standard message definitions, for bags that store none (sqlite3 bags recorded before Iron).
 TYPESTORE = get_typestore(Stores.ROS2_KILTED)
+#: The type hash written for a topic whose bag records none and whose type is not standard: rosbags' writer requires
+#: one, and all zeros cannot be mistaken for the hash of a real type.
+NO_TYPE_HASH = "RIHS01_" + "0" * 64
 _POINT_FIELD = "sensor_msgs/msg/PointField"
 #: What a damaged storage file raises from inside rosbags while messages are read.
 _READ_ERRORS = (ReaderError, SerdeError, sqlite3.Error, struct.error, EOFError, KeyError, IndexError, ValueError)
@@ -58,10 +65,16 @@ class TopicSpec:
     msgdef: str
     digest: str
     qos: tuple[Any, ...] = ()
+    serialization_format: str = "cdr"
 
     @property
     def key(self) -> tuple[str, str]:
         return self.topic, self.msgtype
+
+    @property
+    def described(self) -> bool:
+        """Whether the output can say what the messages hold (a type without a definition is copied all the same)."""
+        return bool(self.msgdef)
 
     def renamed(self, topic: str) -> TopicSpec:
         return dataclasses.replace(self, topic=topic)
@@ -80,18 +93,18 @@ class BagMessage:
 
 
 def _spec(connection: Connection) -> TopicSpec:
-    """The connection's own definition and type hash, or the standard ones when the bag stores none."""
+    """The connection's own definition and type hash, or the standard ones when the bag stores none.
+
+    A type that is not standard keeps what the bag stores, an empty definition too (its raw messages are copied all
+    the same), and gets `NO_TYPE_HASH` when the bag records no hash.
+    """
     msgdef, digest = connection.msgdef.data, connection.digest
-    if not (msgdef and digest):
-        if connection.msgtype not in TYPESTORE.types:
-            raise BagError(
-                f"topic {connection.topic}: the bag stores no definition of {connection.msgtype} and it is not a "
-                "standard type, so it cannot be copied; pass --no-copy"
-            )
+    if not (msgdef and digest) and connection.msgtype in TYPESTORE.types:
         msgdef = TYPESTORE.generate_msgdef(connection.msgtype, ros_version=2)[0]
         digest = TYPESTORE.hash_rihs01(connection.msgtype)
     qos = tuple(getattr(connection.ext, "offered_qos_profiles", ()))
-    return TopicSpec(connection.topic, connection.msgtype, msgdef, digest, qos)
+    serialization = getattr(connection.ext, "serialization_format", "cdr")
+    return TopicSpec(connection.topic, connection.msgtype, msgdef, digest or NO_TYPE_HASH, qos, serialization)
 
 
 class InputBag:
@@ -121,6 +134,16 @@ class InputBag:
         inner = getattr(storage, "storages", None) or [storage]
         return "mcap" if isinstance(inner[0], McapReader) else "sqlite3"
 
+    @property
+    def start_time(self) -> int:
+        """Receive time (ns) of the bag's first message: where --start and --end count from."""
+        return self._reader.start_time
+
+    @property
+    def duration(self) -> int:
+        """ns from the first message to just after the last one (0 for a bag without messages)."""
+        return self._reader.duration
+
     def topics(self) -> dict[str, str]:
         """Topic -> message type, sorted by topic."""
         return {c.topic: c.msgtype for c in sorted(self._connections, key=lambda c: c.topic)}
@@ -148,12 +171,19 @@ class InputBag:
                 specs[connection.topic, connection.msgtype] = _spec(connection)
         return list(specs.values())
 
-    def messages(self, topics: set[str] | None = None) -> Iterator[BagMessage]:
-        """Raw messages of `topics` (default all) in time order; a damaged file ends in a BagError."""
+    def messages(
+        self, topics: set[str] | None = None, start: int | None = None, end: int | None = None
+    ) -> Iterator[BagMessage]:
+        """Raw messages of `topics` (default all) in time order; a damaged file ends in a BagError.
+
+        `start` and `end` (ns after `start_time`) keep only the messages received in [start, end).
+        """
         chosen = [c for c in self._connections if topics is None or c.topic in topics]
         if not chosen:
             return
-        stream = self._reader.messages(chosen)
+        first = None if start is None else self.start_time + start
+        stop = None if end is None else self.start_time + end
+        stream = self._reader.messages(chosen, start=first, stop=stop)
         index = 0
         while True:
             try:

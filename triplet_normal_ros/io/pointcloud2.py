@@ -1,8 +1,11 @@
 """sensor_msgs/PointCloud2 <-> numpy, written against the message spec rather than one driver's layout.
 
 Every access is a strided numpy view over ``msg.data`` (offsets, ``point_step`` and ``row_step`` padding, either byte
-order), so there is no per-point Python loop and no copy before the one that converts to the caller's dtype. Output
-clouds are packed little-endian and their ``data`` is an ``array.array('B')``, the type rclpy serialises without a
+order), so there is no per-point Python loop and no copy before the one that converts to the caller's dtype.
+
+The answer with normals keeps each input point whole, in the input's byte order, and appends the four FLOAT32 normal
+fields at its point_step rounded up to a multiple of 4, so they are aligned for readers that cast the buffer (a 45-byte
+point gets them at 48, point_step 64). Its ``data`` is an ``array.array('B')``, the type rclpy serialises without a
 per-element conversion (a list or numpy array costs ~100x more at publish time).
 """
 
@@ -30,6 +33,8 @@ __all__ = [
 
 #: Fields written by :func:`with_normals`, always FLOAT32, always last in the output layout.
 NORMAL_FIELDS = ("normal_x", "normal_y", "normal_z", "curvature")
+#: The normal fields start on a multiple of this many bytes (FLOAT32's alignment).
+NORMAL_ALIGNMENT = 4
 
 _DATATYPES: dict[int, str] = {
     PointField.INT8: "i1",
@@ -190,51 +195,28 @@ def _point_field(name: str, offset: int, datatype: int, count: int) -> PointFiel
     return PointField(name=name, offset=offset, datatype=datatype, count=count)
 
 
-def _new_cloud(header: object, height: int, width: int, fields: list[PointField], point_step: int) -> PointCloud2:
-    """A packed little-endian cloud whose ``data`` is still to be filled."""
+def _new_cloud(
+    header: object, height: int, width: int, fields: list[PointField], point_step: int, bigendian: bool = False
+) -> PointCloud2:
+    """A cloud without row padding whose ``data`` is still to be filled."""
     return PointCloud2(
         header=copy.deepcopy(header),
         height=height,
         width=width,
         fields=fields,
-        is_bigendian=False,
+        is_bigendian=bigendian,
         point_step=point_step,
         row_step=width * point_step,
     )
 
 
 def _out_view(out: np.ndarray, height: int, width: int, step: int, offset: int, dtype: np.dtype, count: int = 1):
-    """(height, width[, count]) view into a packed output buffer."""
+    """(height, width[, count]) view into an output buffer without row padding."""
     shape: tuple[int, ...] = (height, width, count) if count > 1 else (height, width)
     strides: tuple[int, ...] = (width * step, step, dtype.itemsize)[: len(shape)]
     if height * width == 0:
         return np.empty(shape, dtype)
     return np.ndarray(shape, dtype, buffer=out, offset=offset, strides=strides)
-
-
-def _copy_runs(layout: _Layout, kept: list[_Field], out: np.ndarray, step: int) -> None:
-    """Copy little-endian fields as raw bytes, merging neighbours that are adjacent in the input into one memcpy."""
-    runs: list[list[int]] = []  # [input offset, output offset, nbytes]
-    out_offset = 0
-    for f in kept:
-        if runs and runs[-1][0] + runs[-1][2] == f.offset:
-            runs[-1][2] += f.nbytes
-        else:
-            runs.append([f.offset, out_offset, f.nbytes])
-        out_offset += f.nbytes
-    for src, dst, nbytes in runs:
-        raw = np.dtype(f"V{nbytes}")
-        _out_view(out, layout.height, layout.width, step, dst, raw)[...] = layout.view(src, raw)
-
-
-def _copy_swapped(layout: _Layout, kept: list[_Field], out: np.ndarray, step: int) -> None:
-    """Copy big-endian fields into little-endian slots; unsigned views keep float bit patterns (NaN payloads)."""
-    out_offset = 0
-    for f in kept:
-        bits = np.dtype(f">u{f.dtype.itemsize}")
-        dst = _out_view(out, layout.height, layout.width, step, out_offset, bits.newbyteorder("<"), f.count)
-        dst[...] = layout.view(f.offset, bits, f.count)
-        out_offset += f.nbytes
 
 
 def _all_finite(arrays: Iterable[np.ndarray]) -> bool:
@@ -253,34 +235,44 @@ def _check_normals(n: int, normals: np.ndarray, curvature: np.ndarray) -> tuple[
 def _check_output_steps(step: int, width: int) -> None:
     """The answer's point_step and row_step are uint32 on the wire; larger values would wrap silently when published.
 
-    Only fields that repeat or overlap (or a count near 2^32 in an empty cloud) can get there, since the input's own
-    steps are uint32 too.
+    The 16 bytes of normals after a point_step near 2^32, or after the fields of an empty cloud that declares one far
+    out (an offset or a count near 2^32), get there.
     """
     if max(step, width * step) > _UINT32_MAX:
         raise CloudFormatError(
             f"the answer would need point_step {step} and row_step {width * step}, more than a PointCloud2's uint32 "
-            "can hold (fields that repeat or overlap, or a huge count)"
+            "can hold (a point_step, offset or count near 2^32)"
         )
 
 
+def _normals_offset(layout: _Layout) -> int:
+    """Where the normal fields go: after the whole input point, on a FLOAT32 boundary.
+
+    An empty cloud may declare point_step 0 (drivers leave it unset), so its fields' extent counts too.
+    """
+    extent = max((f.offset + f.nbytes for f in layout.fields), default=0)
+    end = max(layout.point_step, extent)
+    return -(-end // NORMAL_ALIGNMENT) * NORMAL_ALIGNMENT
+
+
 def _with_normals(msg: PointCloud2, layout: _Layout, normals: np.ndarray, curvature: np.ndarray, dense: bool):
-    kept = [f for f in layout.fields if f.name not in NORMAL_FIELDS]
-    out_fields, offset = [], 0
-    for f in kept:
-        out_fields.append(_point_field(f.name, offset, f.datatype, f.count))
-        offset += f.nbytes
-    normals_offset = offset
+    """Each input point byte for byte at the start of its output point, zero padding, then normals and curvature."""
+    offset = _normals_offset(layout)
+    out_fields = [
+        _point_field(f.name, f.offset, f.datatype, f.count) for f in layout.fields if f.name not in NORMAL_FIELDS
+    ]
     out_fields += [_point_field(name, offset + 4 * i, PointField.FLOAT32, 1) for i, name in enumerate(NORMAL_FIELDS)]
     step = offset + 4 * len(NORMAL_FIELDS)
     h, w = layout.height, layout.width
     _check_output_steps(step, w)
-    out = np.empty(h * w * step, dtype=np.uint8)
+    out = np.zeros(h * w * step, dtype=np.uint8)  # the padding stays zero
     if h * w:
-        (_copy_swapped if msg.is_bigendian else _copy_runs)(layout, kept, out, step)
-        f4 = np.dtype("<f4")
-        _out_view(out, h, w, step, normals_offset, f4, 3)[...] = normals.reshape(h, w, 3)
-        _out_view(out, h, w, step, normals_offset + 12, f4)[...] = curvature.reshape(h, w)
-    cloud = _new_cloud(msg.header, h, w, out_fields, step)
+        point = np.dtype(f"V{layout.point_step}")
+        _out_view(out, h, w, step, 0, point)[...] = layout.view(0, point)
+        f4 = np.dtype(">f4" if msg.is_bigendian else "<f4")
+        _out_view(out, h, w, step, offset, f4, 3)[...] = normals.reshape(h, w, 3)
+        _out_view(out, h, w, step, offset + 12, f4)[...] = curvature.reshape(h, w)
+    cloud = _new_cloud(msg.header, h, w, out_fields, step, bool(msg.is_bigendian))
     cloud.is_dense = dense and _all_finite((normals, curvature))
     cloud.data = array.array("B")
     cloud.data.frombytes(out)  # type: ignore[union-attr]
@@ -288,12 +280,14 @@ def _with_normals(msg: PointCloud2, layout: _Layout, normals: np.ndarray, curvat
 
 
 def with_normals(msg: PointCloud2, normals: np.ndarray, curvature: np.ndarray) -> PointCloud2:
-    """A new packed little-endian cloud: every input field byte for byte, plus FLOAT32 normal_x/y/z and curvature.
+    """A new cloud: every input point byte for byte, then FLOAT32 normal_x/y/z and curvature (module docstring).
 
-    Input fields already called normal_x, normal_y, normal_z or curvature are dropped and written anew at the end.
-    The header is copied; ``is_dense`` is True iff every xyz, normal and curvature value is finite.
-    Raises CloudFormatError as :func:`read_xyz` does, and when the packed answer's point_step or row_step would not fit
-    in uint32.
+    Fields keep their offsets and the cloud its byte order; the normal fields start at the input's point_step rounded
+    up to a multiple of 4 (zero bytes between), point_step is that offset + 16 and rows are unpadded. Input fields
+    already called normal_x, normal_y, normal_z or curvature are no longer declared (their bytes stay in the point);
+    the new ones are. The header is copied; ``is_dense`` is True iff every xyz, normal and curvature value is finite.
+    Raises CloudFormatError as :func:`read_xyz` does, and when the answer's point_step or row_step would not fit in
+    uint32.
     """
     layout = _layout(msg)
     normals, curvature = _check_normals(layout.size, normals, curvature)
@@ -301,15 +295,15 @@ def with_normals(msg: PointCloud2, normals: np.ndarray, curvature: np.ndarray) -
 
 
 def empty_with_normals(msg: PointCloud2) -> PointCloud2:
-    """A zero-point cloud that still declares the input's fields and the normal fields.
+    """A zero-point cloud that still declares the input's fields and the normal fields, laid out as `with_normals` does.
 
     Keeps ``height``/``width`` of an already empty input; otherwise height 1, width 0 (PCL's empty cloud). A field-less
     input (a default-constructed message) gives just the normal fields, so subscribers always see the same schema.
-    Raises CloudFormatError for an unknown datatype, a count below 1, or fields whose packed size would not fit uint32.
+    Raises CloudFormatError for an unknown datatype, a count below 1, or a layout whose point_step would not fit uint32.
     """
     fields = _parse_fields(msg.fields, ">" if msg.is_bigendian else "<")
     height, width = (msg.height, msg.width) if msg.height * msg.width == 0 else (1, 0)
-    layout = _Layout(fields, height, width, 0, 0, np.empty(0, np.uint8))
+    layout = _Layout(fields, height, width, msg.point_step, 0, np.empty(0, np.uint8))
     return _with_normals(msg, layout, np.empty((0, 3), np.float32), np.empty(0, np.float32), True)
 
 

@@ -196,6 +196,7 @@ class TripletNormalNode(Node):
         return (
             f"method={s.method}{source}, device={estimator.device}, radius={s.radius:g} m, k={_k(estimator, s)}, "
             f"batch_size={s.batch_size}, gate={s.gate:g}, bend={s.bend:g}, neighbours={s.neighbours}, "
+            f"range_scale={s.range_scale:g}, zeros_are_no_returns={str(s.zeros_are_no_returns).lower()}, "
             f"orient={s.orient}, viewpoint={list(s.viewpoint)}"
         )
 
@@ -262,8 +263,12 @@ class TripletNormalNode(Node):
         """Normals and curvature for every point, by the shared per-cloud step with this snapshot's settings."""
         estimator.radius, estimator.k, estimator.batch_size = s.radius, _k(estimator, s), s.batch_size
         estimator.gate, estimator.bend, estimator.neighbours = s.gate, s.bend, s.neighbours
+        estimator.range_scale = s.range_scale
         viewpoint = s.viewpoint if s.orient else None
-        result = estimate_cloud(estimator, points, shape=shape, viewpoint=viewpoint, cancel=self._cancel)
+        result = estimate_cloud(
+            estimator, points, shape=shape, viewpoint=viewpoint, cancel=self._cancel,
+            zeros_are_no_returns=s.zeros_are_no_returns,
+        )  # fmt: skip
         if result.known == 0 and not np.isfinite(points).all(axis=1).any():
             self.get_logger().warning(
                 "cloud has no finite points; publishing NaN normals", throttle_duration_sec=THROTTLE_S

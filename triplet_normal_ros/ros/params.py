@@ -98,6 +98,22 @@ SPECS: tuple[ParamSpec, ...] = (
         None,
         " | ".join(NEIGHBOUR_SEARCHES),
     ),
+    ParamSpec(
+        "range_scale",
+        float,
+        defaults.RANGE_SCALE,
+        "The ball grows with range: a point's radius is max(radius, range_scale x its distance from the sensor); 0 "
+        "keeps it fixed (depth cameras). A spinning LiDAR's rings part with range, and a fixed ball holds one ring "
+        "(a line: no normal) beyond a few metres; config/lidar.yaml sets 0.03.",
+        (0.0, 1.0),
+    ),
+    ParamSpec(
+        "zeros_are_no_returns",
+        bool,
+        defaults.ZEROS_ARE_NO_RETURNS,
+        "Points at exactly (0, 0, 0) are no-returns (how LiDAR drivers store them in organized clouds): never "
+        "neighbours, NaN normal and curvature. false treats them as measured points.",
+    ),
     ParamSpec("orient", bool, defaults.ORIENT, "Flip normals toward 'viewpoint' (PCL's flipNormalTowardsViewpoint)."),
     ParamSpec(
         "viewpoint",
@@ -126,6 +142,8 @@ class NodeSettings:
     gate: float = SPEC_BY_NAME["gate"].default
     bend: float = SPEC_BY_NAME["bend"].default
     neighbours: str = SPEC_BY_NAME["neighbours"].default
+    range_scale: float = SPEC_BY_NAME["range_scale"].default
+    zeros_are_no_returns: bool = SPEC_BY_NAME["zeros_are_no_returns"].default
     orient: bool = SPEC_BY_NAME["orient"].default
     viewpoint: tuple[float, float, float] = tuple(SPEC_BY_NAME["viewpoint"].default)
     stats_period: float = SPEC_BY_NAME["stats_period"].default
@@ -146,6 +164,7 @@ class NodeSettings:
             "gate": self.gate,
             "bend": self.bend,
             "neighbours": self.neighbours,
+            "range_scale": self.range_scale,
         }
 
 
