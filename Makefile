@@ -16,6 +16,7 @@ PINS := \
 	"setuptools<80" \
 	rosbags==0.11.9 safetensors==0.8.0 trimesh==5.2.0 manifold3d==3.5.4 rtree==1.4.1 pypcd4==1.5.1 \
 	tqdm==4.70.1 matplotlib==3.11.2 \
+	ray==2.60.0 \
 	pytest==9.2.0 hypothesis==6.170.15 ruff==0.17.6
 
 .PHONY: venv demo test test-fast lint bench eval train clean

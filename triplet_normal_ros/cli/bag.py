@@ -30,6 +30,14 @@ continues with --resume. See docs/CLI.md."""
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="IN", type=Path, help="input rosbag2: a bag directory, or a .mcap or .db3 file")
     p.add_argument("output", metavar="OUT", type=Path, help="output bag directory (must not exist, see --overwrite)")
+    again = p.add_mutually_exclusive_group()
+    again.add_argument("--overwrite", action="store_true", help="replace an existing OUT and an unfinished OUT.partial")
+    again.add_argument("--resume", action="store_true", help="continue the unfinished run in OUT.partial")
+    add_options(p)
+
+
+def add_options(p: argparse.ArgumentParser) -> None:
+    """Every option of one bag's conversion (topics, part, estimator, orientation): `bag` and `bags` share them."""
     p.add_argument("--topic", required=True, help="the sensor_msgs/PointCloud2 topic to estimate normals on")
     p.add_argument("--output-topic", metavar="TOPIC", help="topic of the clouds with normals (default: TOPIC/normals)")
     p.add_argument("--storage", choices=("sqlite3", "mcap"), help="output storage (default: the input's)")
@@ -37,9 +45,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start", type=float, metavar="S", help="read from S seconds after IN's first message (default 0)")
     p.add_argument("--end", type=float, metavar="S", help="read up to (not at) S seconds after IN's first message")
     p.add_argument("--limit", type=int, metavar="N", help="stop after the N-th cloud on --topic (OUT ends there)")
-    again = p.add_mutually_exclusive_group()
-    again.add_argument("--overwrite", action="store_true", help="replace an existing OUT and an unfinished OUT.partial")
-    again.add_argument("--resume", action="store_true", help="continue the unfinished run in OUT.partial")
     p.add_argument(
         "--segment-seconds",
         type=float,
@@ -83,14 +88,12 @@ def run(args: argparse.Namespace) -> int:
     from ..io.bag_output import partial_path
     from ..io.bags import InputBag
 
-    _check(args)
-    if args.checkpoint is None and args.method != "pca":  # the node's rule for an empty checkpoint parameter
-        from ..core.device import device_type
-
-        args.checkpoint = defaults.shipped_checkpoint(device_type(args.device))
+    check_options(args)
+    _check_paths(args.input, args.output)
+    resolve_checkpoint(args)
     try:
         with InputBag(args.input) as bag:
-            summary = _convert(args, bag)
+            _, summary = _convert(args, bag)
     except (KeyboardInterrupt, EstimationCancelled):  # main's one line, plus where the work is and how to go on
         kept = partial_path(args.output)
         where = f"finished work is kept in {kept}: rerun with --resume" if kept.exists() else "nothing was kept"
@@ -100,7 +103,23 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check(args: argparse.Namespace) -> None:
+def resolve_checkpoint(args: argparse.Namespace) -> None:
+    """An absent --checkpoint means the node's: the shipped one for the device (`defaults.shipped_checkpoint`)."""
+    if args.checkpoint is None and args.method != "pca":
+        from ..core.device import device_type
+
+        args.checkpoint = defaults.shipped_checkpoint(device_type(args.device))
+
+
+def convert(args: argparse.Namespace, estimator=None) -> tuple[int, str]:
+    """One bag, args.input -> args.output, with `estimator` (built from the options when None): (clouds, summary)."""
+    from ..io.bags import InputBag
+
+    with InputBag(args.input) as bag:
+        return _convert(args, bag, estimator)
+
+
+def check_options(args: argparse.Namespace) -> None:
     checks.positive("radius", args.radius)
     checks.at_least("k", args.k, 3)
     checks.at_least("batch-size", args.batch_size, 1)
@@ -111,9 +130,12 @@ def _check(args: argparse.Namespace) -> None:
     _non_negative("segment-seconds", args.segment_seconds)
     _check_part(args)
     checks.device(args.device)
-    source, target = args.input.resolve(), args.output.resolve()
+
+
+def _check_paths(source_path: Path, target_path: Path) -> None:
+    source, target = source_path.resolve(), target_path.resolve()
     if source == target or source in target.parents or target in source.parents:
-        raise UsageError(f"OUT {args.output} must lie outside IN {args.input} and not contain it")
+        raise UsageError(f"OUT {target_path} must lie outside IN {source_path} and not contain it")
 
 
 def _non_negative(name: str, value: float | None) -> None:
@@ -153,8 +175,8 @@ def _part(args: argparse.Namespace) -> str:
     return f" ({', '.join(words)})" if words else ""
 
 
-def _convert(args: argparse.Namespace, bag) -> str:
-    """Every message of IN in time order -> OUT.partial, then OUT; returns the summary line."""
+def _convert(args: argparse.Namespace, bag, estimator=None) -> tuple[int, str]:
+    """Every message of IN in time order -> OUT.partial, then OUT; returns (clouds, the summary line)."""
     from ..io.bag_output import ResumableBagWriter
     from ..io.bags import CLOUD_TYPE
 
@@ -171,14 +193,14 @@ def _convert(args: argparse.Namespace, bag) -> str:
         args.output, storage, topics, _job(args, bag, output_topic, storage),
         overwrite=args.overwrite, resume=args.resume, segment_seconds=args.segment_seconds,
     ) as writer:  # fmt: skip
-        estimator = checks.make_estimator(args, args.radius)
+        estimator = estimator or checks.make_estimator(args, args.radius)
         _note_undescribed(copied)  # only now: a run refused before any work says so in one line
         stream = bag.messages(None if copied else {args.topic}, start, end)
         total = _clouds_expected(args, bag)
         clouds, skipped = _estimate_all(args, stream, writer, estimator, (output_topic, CLOUD_TYPE), total)
         _merge(writer)
     resumed = f", resumed at input message {writer.resumed_at}" if writer.resumed_at else ""
-    return (
+    return clouds, (
         f"{args.input}{_part(args)}: {clouds} clouds on {args.topic} ({skipped} skipped){resumed}, {len(copied)} "
         f"topics copied; {estimator.method}, radius {estimator.radius:g} m, {estimator.device}; "
         f"{time.perf_counter() - began:.1f} s -> {args.output} ({storage}, {output_topic})"

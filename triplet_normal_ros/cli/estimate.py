@@ -13,6 +13,8 @@ from . import args as checks
 
 #: Inputs with more query points than this get a tqdm bar (on a terminal), fed by the estimator's progress callback.
 PROGRESS_MIN_POINTS = 20_000
+#: With --workers or --address, each tile answers for at most this many points (its halo adds the balls around them).
+TILE_POINTS = 250_000
 
 DESCRIPTION = """Estimate unit normals (and PCA curvature) for one point cloud. Normal signs are arbitrary unless
 --viewpoint is given, which flips each normal to face that point (PCL's flipNormalTowardsViewpoint).
@@ -56,6 +58,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batch-size", type=int, metavar="B", help="patches per network call (default: the estimator's)")
     checks.add_hybrid_options(p)
     checks.add_sensor_options(p)
+    where = p.add_mutually_exclusive_group()
+    where.add_argument(
+        "--workers", type=int, metavar="N", help="cut the cloud into tiles and estimate them on N local Ray workers"
+    )
+    where.add_argument(
+        "--address", metavar="ADDR", help="... or on a running Ray cluster (its head's HOST:PORT, or auto)"
+    )
+    p.add_argument(
+        "--tile-points",
+        type=int,
+        default=TILE_POINTS,
+        metavar="P",
+        help=f"with --workers/--address: points each tile answers for (default {TILE_POINTS}); bounds worker memory",
+    )
     p.add_argument(
         "--neighbours",
         choices=NEIGHBOUR_SEARCHES,
@@ -83,7 +99,10 @@ def run(args: argparse.Namespace) -> int:
     estimator = checks.make_estimator(args, radius)
     points = cloud.points if args.keep_zeros else without_no_returns(cloud.points)
     start = time.perf_counter()
-    normals, curvature = estimate_with_progress(estimator, points, query, shape=(cloud.height, cloud.width))
+    if args.workers is None and args.address is None:
+        normals, curvature = estimate_with_progress(estimator, points, query, shape=(cloud.height, cloud.width))
+    else:
+        normals, curvature = _tiled(args, estimator, points, query, cloud.height)
     seconds = time.perf_counter() - start
     if args.viewpoint is not None:
         from ..core.orientation import orient_towards_viewpoint
@@ -98,6 +117,49 @@ def run(args: argparse.Namespace) -> int:
     )
     print(summary, file=sys.stderr if out == "-" else sys.stdout)
     return 0
+
+
+def _tiled(args: argparse.Namespace, estimator, points: np.ndarray, query: np.ndarray, height: int):
+    """The cloud cut into tiles with halos (core/tiles.py), each estimated on a Ray worker, joined in query order."""
+    from tqdm import tqdm
+
+    from ..core.tiles import plan_tiles
+    from . import cluster
+
+    if height > 1:
+        raise UsageError(f"{args.input} is organized ({height} rows): one sensor frame; estimate it without --workers")
+    finite = np.isfinite(points).all(axis=1)
+    wanted = np.zeros(len(points), bool)
+    wanted[query] = True
+
+    def halo_of(interior: np.ndarray) -> float:
+        return float(estimator.search_radii(np.linalg.norm(points[interior], axis=1).max(initial=0.0)))
+
+    tiles = [t for t in plan_tiles(np.where(finite[:, None], points, np.nan), args.tile_points, halo_of)]
+    tiles = [t for t in tiles if wanted[t.interior].any()]
+    normals = np.full((len(points), 3), np.nan, np.float32)
+    curvature = np.full(len(points), np.nan, np.float32)
+    options = {k: v for k, v in vars(args).items() if k not in ("handler", "argv", "input", "out", "indices")}
+    options.update(radius=estimator.radius, checkpoint=args.checkpoint)
+    bar = tqdm(total=len(tiles), unit="tile", disable=None, file=sys.stderr)
+    with cluster.ray_session(args.address, args.workers or cluster.default_workers(args.device)), bar:
+        workers, gpu = cluster.worker_count(args.workers, args.device)
+        pool = cluster.Pool.start(options, workers, gpu, local=args.address is None)
+        failures: list[str] = []
+
+        def submit(actor, tile):
+            inside = tile.interior[wanted[tile.interior]]
+            return actor.tile.remote(points[tile.members], np.searchsorted(tile.members, inside), tile.members)
+
+        def done(tile, result) -> None:
+            inside = tile.interior[wanted[tile.interior]]
+            normals[inside], curvature[inside] = result
+            bar.update(1)
+
+        pool.run(tiles, submit, done, lambda tile, reason: failures.append(reason))
+    if failures:
+        raise cluster.ClusterError(f"{len(failures)} of {len(tiles)} tiles failed: {failures[0]}")
+    return normals[query], curvature[query]
 
 
 def _method(estimator) -> str:
@@ -128,6 +190,11 @@ def _check(args: argparse.Namespace) -> None:
     checks.hybrid_options(args)
     checks.range_scale(args.range_scale)
     checks.device(args.device)
+    checks.at_least("tile-points", args.tile_points, 1)
+    if args.workers is not None or args.address is not None:
+        from . import cluster
+
+        cluster.check_workers(args.workers, args.address)
 
 
 def _output_path(args: argparse.Namespace) -> str:

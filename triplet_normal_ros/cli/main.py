@@ -1,4 +1,4 @@
-"""`triplet-normal estimate | bag | eval | train | ablate | bench`: the offline command line.
+"""`triplet-normal estimate | bag | bags | eval | train | ablate | bench`: the offline command line.
 
 This module holds the parser and the error policy; each subcommand lives in its own module with `add_arguments`
 and `run`. Heavy modules (torch, training data, matplotlib) are imported inside the handlers, so `--help` is instant
@@ -11,13 +11,14 @@ import sys
 from collections.abc import Sequence
 
 from ..errors import TripletNormalError, UsageError
-from . import ablate, bag, bench, estimate, evaluate, train
+from . import ablate, bag, bags, bench, estimate, evaluate, train
 
 PROG = "triplet-normal"
 #: (name, module, help); train and ablate add their options only when they are the command (they import torch).
 COMMANDS = (
     ("estimate", estimate, "normals for one cloud file"),
     ("bag", bag, "normals for every PointCloud2 of a rosbag2, into a new rosbag2"),
+    ("bags", bags, "bag on every rosbag2 under a directory, in parallel on Ray (this machine or a cluster)"),
     ("eval", evaluate, "accuracy tables vs PCA (and, with --out, into a results file)"),
     ("train", train, "train the encoder and regressor"),
     ("ablate", ablate, "the paper's ablations on the validation set"),

@@ -107,6 +107,7 @@ class NormalEstimator:
         self.neighbours = neighbours
         self.range_scale = range_scale
         self.last_run = RunInfo()
+        self._ids: torch.Tensor | None = None  # the running estimate's point_ids, on the device
 
     @property
     def radius(self) -> float:
@@ -185,6 +186,7 @@ class NormalEstimator:
         timings: dict[str, float] | None = None,
         progress: Callable[[int], None] | None = None,
         shape: tuple[int, int] | None = None,
+        point_ids: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Normals (M, 3) and curvature (M,), float32, at `query` indices (default: every point).
 
@@ -194,13 +196,17 @@ class NormalEstimator:
         Normal signs are arbitrary; see `orientation.orient_towards_viewpoint`. `progress(n)` is called with the
         number of query rows finished after each chunk (non-finite ones count at once), for a progress bar.
         `shape` = (height, width) of an organized cloud lets neighbours come from its pixel grid (see `organized`).
+        `point_ids` (N,) int: each point's index in a larger cloud these points were cut from (a tile with its halo);
+        the network's subsample of a pool is a hash of (point, neighbour, seed), so naming the points as the whole
+        cloud does gives a tile's points the whole cloud's answer.
         """
         points = _as_cloud(points)
         query = _as_query(query, len(points))
+        self._ids = None if point_ids is None else torch.from_numpy(_as_ids(point_ids, len(points))).to(self.device)
         normals = np.full((len(query), 3), np.nan, dtype=np.float32)
         curvature = np.full(len(query), np.nan, dtype=np.float32)
         timings = {} if timings is None else timings
-        cloud = torch.from_numpy(np.ascontiguousarray(points, dtype=np.float64)).to(self.device)
+        cloud = torch.from_numpy(_writable(np.ascontiguousarray(points, dtype=np.float64))).to(self.device)
         if self._window_applies(shape, len(points)):
             stage = "pca" if self.method == "pca" else "survey"
             with _timed(timings, stage):
@@ -252,10 +258,19 @@ class NormalEstimator:
             yield self.radius, todo
             return
         ranges = cloud[torch.from_numpy(query[todo]).to(cloud.device)].norm(dim=1).cpu().numpy()
+        radii = self.search_radii(ranges)
+        for radius in np.unique(radii):
+            yield float(radius), todo[radii == radius]
+
+    def search_radii(self, ranges: np.ndarray) -> np.ndarray:
+        """The ball radius pools are searched at for points at these `ranges` from the origin: `radius`, or with a
+        range_scale the smallest radius × RADIUS_STEP^j that holds max(radius, range_scale × range)."""
+        ranges = np.asarray(ranges, dtype=np.float64)
+        if self.range_scale == 0:
+            return np.full(ranges.shape, self.radius)
         grown = np.maximum(self.radius, self.range_scale * ranges) / self.radius
-        steps = np.ceil(np.log(grown) / np.log(RADIUS_STEP) - 1e-9).astype(np.int64)
-        for step in np.unique(steps):
-            yield self.radius * RADIUS_STEP ** int(step), todo[steps == step]
+        steps = np.ceil(np.log(grown) / np.log(RADIUS_STEP) - 1e-9)
+        return self.radius * RADIUS_STEP**steps
 
     def _window_applies(self, shape: tuple[int, int] | None, n: int) -> bool:
         """The integral-image path answers pca on an organized cloud when asked ('window'), and by default ('auto')
@@ -335,7 +350,8 @@ class NormalEstimator:
     def _learned_chunk(self, cloud, centres, pool, rows, radius, cancel, timings) -> tuple[np.ndarray, np.ndarray]:
         with _timed(timings, "patches"):
             patches = build_patches(
-                cloud, centres, pool, radius, self.k, centre_ids=rows, seed=self.seed, **self._fit_options()
+                cloud, centres, pool, radius, self.k, centre_ids=rows, seed=self.seed, point_ids=self._ids,
+                **self._fit_options(),
             )
         local = self._network(patches, cancel, timings)
         self.last_run.network += len(centres)
@@ -365,6 +381,7 @@ class NormalEstimator:
                     radius,
                     self.k,
                     centre_ids=rows[gated],
+                    point_ids=self._ids,
                     seed=self.seed,
                     pca=(eigvals[gated], frame[gated]),
                     **self._fit_options(),
@@ -573,7 +590,20 @@ def _as_query(query: np.ndarray | None, n: int) -> np.ndarray:
         raise EstimatorError("query must be a 1-D array of integer point indices")
     if query.size and (query.min() < 0 or query.max() >= n):
         raise EstimatorError(f"query indices must lie in [0, {n}), got [{query.min()}, {query.max()}]")
-    return query.astype(np.int64, copy=False)
+    return _writable(query.astype(np.int64, copy=False))
+
+
+def _as_ids(point_ids: np.ndarray, n: int) -> np.ndarray:
+    ids = np.asarray(point_ids)
+    if ids.shape != (n,) or not np.issubdtype(ids.dtype, np.integer) or (n and ids.min() < 0):
+        raise EstimatorError(f"point_ids must be ({n},) integers >= 0, got {ids.dtype} {ids.shape}")
+    return _writable(ids.astype(np.int64, copy=False))
+
+
+def _writable(array: np.ndarray) -> np.ndarray:
+    """`array`, or a copy where it is read-only (Ray's object store hands out such arrays): torch wants to own
+    writable memory for a shared tensor."""
+    return array if array.flags.writeable else array.copy()
 
 
 def _sync(device: torch.device) -> None:

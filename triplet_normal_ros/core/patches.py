@@ -40,6 +40,7 @@ def build_patches(
     scales: tuple[int, ...] = (),
     inlier_seeds: tuple[int, ...] = (),
     pca: tuple[torch.Tensor, torch.Tensor] | None = None,
+    point_ids: torch.Tensor | None = None,
 ) -> Patches:
     """Build patches from neighbour pools (B, P) of cloud indices, -1 padded (see `NeighbourIndex.ball`).
 
@@ -49,7 +50,9 @@ def build_patches(
     patch never depends on which other points share its batch (inference). Non-empty `scales` adds the plane fits
     a scale head needs (`scales.scale_fits`, with inlier fits grown from `inlier_seeds`), from the whole pool like the
     frame. `pca` = (eigenvalues, frames) of these same pools, as `frames.principal_frames` gave them, saves computing
-    them twice (hybrid has them from its survey); eigenvalues at any scale give the same curvature.
+    them twice (hybrid has them from its survey); eigenvalues at any scale give the same curvature. `point_ids` (N,)
+    names each cloud point for the hash when the cloud is part of a larger one (a tile): a patch then draws the
+    points it would draw in the whole cloud.
     """
     mask = pool >= 0
     valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
@@ -59,6 +62,8 @@ def build_patches(
     eigvals, frame = principal_frames(masked_covariance(local, mask), valid) if pca is None else pca
     frame = canonical_signs(frame.to(torch.float64), local, mask)
     rot = frame if rotation is None else rotation.to(torch.float64)
+    if point_ids is not None and centre_ids is not None:
+        centre_ids, pool = point_ids[centre_ids], torch.where(mask, point_ids[safe], -1)
     keys = None if centre_ids is None else hashed_keys(centre_ids, pool, seed)
     columns = sample_columns(mask, k, generator, keys)
     chosen = torch.gather(local, 1, columns.unsqueeze(-1).expand(-1, -1, 3))

@@ -1,0 +1,183 @@
+"""`triplet-normal bags` on Ray: every bag under a directory (bag directories at any depth and bare files, both
+storages) written exactly as `triplet-normal bag` writes it in one process; local Ray with two workers, a real cluster
+started with `ray start --head`, a worker killed mid-bag (Ray restarts it and the bag continues its own partial
+output), a corrupt bag that fails alone in one line, --resume, and an unreachable --address."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbag_files import CLOUD, STRING, Record, cloud, read_raw, scattered_points, string, write_bag
+
+from triplet_normal_ros.cli.bags import find_bags, target_for
+from triplet_normal_ros.cli.main import main
+
+pytestmark = pytest.mark.slow  # Ray starts its own processes
+BIN = Path(sys.executable).parent
+OPTIONS = ["--topic", "/points", "--method", "pca", "--radius", "0.3", "--device", "cpu"]
+
+
+def records(seed: int, clouds: int = 3, points: int = 1500) -> list[Record]:
+    out = []
+    for k in range(clouds):
+        out.append(Record("/points", CLOUD, (seed * 100 + k + 1) * 10**8, cloud(scattered_points(points, seed + k), k)))
+        out.append(Record("/chatter", STRING, (seed * 100 + k + 1) * 10**8 + 5, string(f"{seed}.{k}")))
+    return out
+
+
+def fleet(root: Path) -> list[Path]:
+    """Four bags: two directories (one nested), and two bare files (MCAP and sqlite3)."""
+    bags = [
+        write_bag(root / "robot_a" / "day1", "sqlite3", records(1)),
+        write_bag(root / "robot_a" / "deep" / "day2", "mcap", records(2)),
+    ]
+    for name, storage, seed in (("robot_b_run1", "mcap", 3), ("robot_b_run2", "sqlite3", 4)):
+        folder = write_bag(root / "scratch" / name, storage, records(seed))
+        bare = next(folder.glob("*.mcap" if storage == "mcap" else "*.db3"))
+        target = root / "robot_b" / f"{name}{bare.suffix}"
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.move(bare, target)
+        shutil.rmtree(folder)
+        bags.append(target)
+    shutil.rmtree(root / "scratch")
+    return bags
+
+
+def one_process(bags: list[Path], root: Path, out: Path) -> dict[Path, list]:
+    """What `triplet-normal bag` writes for each bag, one after another in this process."""
+    expected = {}
+    for source in bags:
+        target = target_for(root, out, source)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        assert main(["bag", str(source), str(target), *OPTIONS]) == 0
+        expected[target.relative_to(out)] = read_raw(target)
+    return expected
+
+
+def test_find_bags_takes_directories_and_bare_files_at_any_depth(tmp_path: Path) -> None:
+    bags = fleet(tmp_path / "in")
+    assert find_bags(tmp_path / "in") == sorted(bags)
+    assert target_for(tmp_path / "in", tmp_path / "out", bags[-1]) == tmp_path / "out" / "robot_b" / "robot_b_run2"
+
+
+def test_two_local_workers_write_what_bag_writes_and_a_corrupt_bag_fails_alone(tmp_path: Path, capsys) -> None:
+    root = tmp_path / "in"
+    bags = fleet(root)
+    broken = root / "robot_c" / "broken.mcap"
+    broken.parent.mkdir()
+    broken.write_bytes(b"\x89MCAP0\r\n not really")
+    expected = one_process(bags, root, tmp_path / "reference")
+    capsys.readouterr()
+    assert main(["bags", str(root), str(tmp_path / "out"), "--workers", "2", *OPTIONS]) == 1
+    captured = capsys.readouterr()
+    errors = [line for line in captured.err.splitlines() if line.startswith("triplet-normal: error:")]
+    assert len(errors) == 1 and str(broken) in errors[0], captured.err
+    assert "4 of 5 bags (12 clouds) written, 0 already finished, 1 failed; 2 workers on this machine" in captured.out
+    for relative, messages in expected.items():
+        assert read_raw(tmp_path / "out" / relative) == messages, relative
+
+    # Run again: the outputs are there, so it refuses in one line; with --resume the finished ones stay.
+    assert main(["bags", str(root), str(tmp_path / "out"), "--workers", "2", *OPTIONS]) == 2
+    assert "pass --resume" in capsys.readouterr().err
+    shutil.rmtree(tmp_path / "out" / "robot_a" / "day1")
+    assert main(["bags", str(root), str(tmp_path / "out"), "--workers", "2", "--resume", *OPTIONS]) == 1
+    assert "1 of 2 bags (3 clouds) written, 3 already finished, 1 failed" in capsys.readouterr().out
+    assert read_raw(tmp_path / "out" / "robot_a" / "day1") == expected[Path("robot_a/day1")]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def cluster(tmp_path: Path):
+    """A real Ray cluster of one head node, started as users start one, stopped afterwards."""
+    port = free_port()
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
+    start = [str(BIN / "ray"), "start", "--head", f"--port={port}", "--num-cpus=2", "--include-dashboard=false"]
+    subprocess.run(start, check=True, env=env, capture_output=True, timeout=120)
+    try:
+        yield f"127.0.0.1:{port}"
+    finally:
+        subprocess.run([str(BIN / "ray"), "stop", "--force"], env=env, capture_output=True, timeout=120)
+
+
+def test_bags_join_a_running_cluster_by_address(tmp_path: Path, capsys, cluster: str) -> None:
+    root = tmp_path / "in"
+    bags = fleet(root)
+    expected = one_process(bags, root, tmp_path / "reference")
+    capsys.readouterr()
+    assert main(["bags", str(root), str(tmp_path / "out"), "--address", cluster, *OPTIONS]) == 0
+    assert f"on the cluster at {cluster}" in capsys.readouterr().out
+    for relative, messages in expected.items():
+        assert read_raw(tmp_path / "out" / relative) == messages
+
+
+def test_a_worker_killed_mid_bag_is_restarted_and_nothing_is_lost_or_written_twice(tmp_path: Path) -> None:
+    root = tmp_path / "in"
+    source = write_bag(root / "long", "mcap", records(7, clouds=24, points=10_000))
+    options = [*OPTIONS, "--segment-seconds", "0"]
+    reference = tmp_path / "reference"
+    assert main(["bag", str(source), str(reference), *options]) == 0
+    out = tmp_path / "out"
+    command = [str(BIN / "triplet-normal"), "bags", str(root), str(out), "--workers", "1", *options]
+    run = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    partial = out / "long.partial"
+    killed = None
+    deadline = time.monotonic() + 300
+    while killed is None and time.monotonic() < deadline and run.poll() is None:
+        if partial.exists() and any(partial.rglob("*")):
+            killed = _kill_worker()
+        time.sleep(0.05)  # polling the file system for the moment to strike, not waiting for a result
+    stdout, stderr = run.communicate(timeout=600)
+    assert killed, f"no worker was running the bag: {stderr}"
+    assert run.returncode == 0, stderr
+    assert "1 of 1 bags (24 clouds) written" in stdout
+    got, want = read_raw(out / "long"), read_raw(reference)
+    assert len(got) == 3 * 24 and got == want  # each cloud, its string and its answer, once
+
+
+def _kill_worker() -> int | None:
+    """SIGKILL the Ray worker process running a bag, if there is one now."""
+    found = subprocess.run(["pgrep", "-f", "ray::_Worker.bag"], capture_output=True, text=True).stdout.split()
+    for pid in map(int, found):
+        os.kill(pid, signal.SIGKILL)
+        return pid
+    return None
+
+
+def test_an_unreachable_address_is_one_line_and_exit_1(tmp_path: Path, capsys) -> None:
+    root = tmp_path / "in"
+    write_bag(root / "one", "mcap", records(1))
+    began = time.monotonic()
+    assert main(["bags", str(root), str(tmp_path / "out"), "--address", f"127.0.0.1:{free_port()}", *OPTIONS]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1 and "cannot join the Ray cluster" in captured.err
+    assert time.monotonic() - began < 60
+
+
+def test_tiled_estimate_of_a_million_points_is_the_one_process_answer(tmp_path: Path, capsys) -> None:
+    rng = np.random.default_rng(0)
+    n = 1_000_000
+    u, v = rng.uniform(0, 40, n), rng.uniform(0, 40, n)
+    cloud_points = np.c_[u, v, 0.2 * np.sin(u) * np.cos(v) + rng.normal(scale=0.005, size=n)]
+    path = tmp_path / "map.npy"
+    np.save(path, cloud_points)
+    common = ["--method", "pca", "--k", "30", "--radius", "0.3", "--device", "cpu"]
+    assert main(["estimate", str(path), "--out", str(tmp_path / "one.npy"), *common]) == 0
+    tiled = ["--workers", "2", "--tile-points", "200000"]
+    assert main(["estimate", str(path), "--out", str(tmp_path / "tiled.npy"), *common, *tiled]) == 0
+    one, parts = np.load(tmp_path / "one.npy"), np.load(tmp_path / "tiled.npy")
+    assert one.shape == parts.shape and np.isfinite(one).all(axis=1).mean() > 0.99
+    np.testing.assert_array_equal(parts, one)
