@@ -14,7 +14,7 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch.actions import DeclareLaunchArgument
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
@@ -29,7 +29,8 @@ PRESETS = ["params", "depth_camera", "lidar"]
 def generate_launch_description() -> LaunchDescription:
     """Four arguments and one node: the package's ``node`` executable with the parameter file and the remaps."""
     config = os.path.join(get_package_share_directory(PACKAGE), "config")
-    default_params = PathJoinSubstitution([config, [LaunchConfiguration("preset"), ".yaml"]])
+    # A list of text and substitutions is joined at launch: <share>/config/<preset>.yaml (on every distribution).
+    default_params = [config + os.sep, LaunchConfiguration("preset"), ".yaml"]
     return LaunchDescription(
         [
             DeclareLaunchArgument("input", default_value="input", description="PointCloud2 topic to read"),

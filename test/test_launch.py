@@ -108,7 +108,6 @@ def test_it_uses_the_launch_api_and_defines_what_ros2_launch_calls() -> None:
         ("launch", "LaunchDescription"),
         ("launch.actions", "DeclareLaunchArgument"),
         ("launch.substitutions", "LaunchConfiguration"),
-        ("launch.substitutions", "PathJoinSubstitution"),
         ("launch_ros.actions", "Node"),
         ("ament_index_python.packages", "get_package_share_directory"),
     }
@@ -151,7 +150,7 @@ def test_every_argument_is_a_topic_remap_the_parameter_file_or_a_node_parameter_
     assert declared[PRESET]["choices"] == presets and declared[PRESET]["default_value"] == "params"
     assert all((REPO / "config" / f"{preset}.yaml").is_file() for preset in presets), presets
     default_expression = _assignment(module, "default_params")
-    assert ast.unparse(default_expression) == "PathJoinSubstitution([config, [LaunchConfiguration('preset'), '.yaml']])"
+    assert ast.unparse(default_expression) == "[config + os.sep, LaunchConfiguration('preset'), '.yaml']"
     # Any other argument is a node parameter of the same name, passed as that parameter, with the node's default.
     specs = {spec.name: spec for spec in SPECS}
     assert all(isinstance(mapping, dict) for mapping in rest), f"after the parameter file only name: value maps: {rest}"

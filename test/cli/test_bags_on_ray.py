@@ -6,6 +6,7 @@ output), a corrupt bag that fails alone in one line, --resume, and an unreachabl
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import signal
 import socket
@@ -23,6 +24,8 @@ from triplet_normal_ros.cli.main import main
 
 pytestmark = pytest.mark.slow  # Ray starts its own processes
 BIN = Path(sys.executable).parent
+#: A closed segment of an OUT.partial (io/bag_output.py): input messages [first, last) written whole.
+CLOSED = re.compile(r"^\d{12}-\d{12}$")
 OPTIONS = ["--topic", "/points", "--method", "pca", "--radius", "0.3", "--device", "cpu"]
 
 
@@ -133,28 +136,48 @@ def test_a_worker_killed_mid_bag_is_restarted_and_nothing_is_lost_or_written_twi
     out = tmp_path / "out"
     command = [str(BIN / "triplet-normal"), "bags", str(root), str(out), "--workers", "1", *options]
     run = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    partial = out / "long.partial"
+    segments = out / "long.partial" / "segments"
     killed = None
     deadline = time.monotonic() + 300
     while killed is None and time.monotonic() < deadline and run.poll() is None:
-        if partial.exists() and any(partial.rglob("*")):
-            killed = _kill_worker()
+        if _closed_segment(segments):
+            killed = _kill_worker(run.pid)  # after a segment closed: the retry must continue from it
         time.sleep(0.05)  # polling the file system for the moment to strike, not waiting for a result
     stdout, stderr = run.communicate(timeout=600)
     assert killed, f"no worker was running the bag: {stderr}"
     assert run.returncode == 0, stderr
+    assert "resumed at input message" in stdout  # the retried bag continued its own partial output
     assert "1 of 1 bags (24 clouds) written" in stdout
     got, want = read_raw(out / "long"), read_raw(reference)
     assert len(got) == 3 * 24 and got == want  # each cloud, its string and its answer, once
 
 
-def _kill_worker() -> int | None:
-    """SIGKILL the Ray worker process running a bag, if there is one now."""
+def _closed_segment(segments: Path) -> bool:
+    try:
+        return any(CLOSED.match(p.name) for p in segments.iterdir())
+    except FileNotFoundError:  # not yet made, or already merged into OUT
+        return False
+
+
+def _kill_worker(root: int) -> int | None:
+    """SIGKILL the Ray worker process, started under `root`, that is running a bag, if there is one now."""
     found = subprocess.run(["pgrep", "-f", "ray::_Worker.bag"], capture_output=True, text=True).stdout.split()
     for pid in map(int, found):
-        os.kill(pid, signal.SIGKILL)
-        return pid
+        if _descends_from(pid, root):
+            os.kill(pid, signal.SIGKILL)
+            return pid
     return None
+
+
+def _descends_from(pid: int, root: int) -> bool:
+    while pid > 1:
+        if pid == root:
+            return True
+        try:
+            pid = int(Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[1])
+        except (OSError, ValueError, IndexError):
+            return False
+    return False
 
 
 def test_an_unreachable_address_is_one_line_and_exit_1(tmp_path: Path, capsys) -> None:
@@ -181,3 +204,23 @@ def test_tiled_estimate_of_a_million_points_is_the_one_process_answer(tmp_path: 
     one, parts = np.load(tmp_path / "one.npy"), np.load(tmp_path / "tiled.npy")
     assert one.shape == parts.shape and np.isfinite(one).all(axis=1).mean() > 0.99
     np.testing.assert_array_equal(parts, one)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--workers", "2"], "is organized (4 rows)"),
+        (["--tile-points", "100"], "--tile-points cuts the cloud for --workers or --address"),
+        (["--workers", "0"], "--workers must be an integer >= 1"),
+    ],
+)
+def test_estimate_on_ray_refuses_what_it_cannot_tile_in_one_line(tmp_path: Path, capsys, extra, message) -> None:
+    """Refused before Ray starts: an organized cloud (one sensor frame), --tile-points alone, no workers."""
+    from triplet_normal_ros.io.cloud_files import write_normals
+
+    grid = np.stack(np.meshgrid(np.arange(5.0), np.arange(4.0)), axis=-1).reshape(-1, 2)
+    path = tmp_path / "frame.pcd"  # an organized PCD, as a depth camera's frame is saved
+    write_normals(path, np.c_[grid * 0.01, np.full(20, 1.0)], np.zeros((20, 3)), np.zeros(20), organized=(4, 5))
+    status = main(["estimate", str(path), "--out", str(tmp_path / "n.npy"), "--method", "pca", *extra])
+    err = capsys.readouterr().err
+    assert status in (1, 2) and err.count("\n") == 1 and message in err, err

@@ -76,3 +76,25 @@ def test_the_network_methods_tile_by_tile_give_the_one_process_answer(method: st
     tile = plan_tiles(cloud, 1500, lambda interior: radius)[0]
     local, _ = unnamed.estimate(cloud[tile.members], tile.query)
     assert not np.allclose(local, whole[0][tile.interior], atol=1e-5, equal_nan=True)
+
+
+def test_tiles_with_a_ball_growing_with_range_give_the_one_process_answer() -> None:
+    """With a range_scale each tile's halo is the largest ball its interior searches (`search_radii`, rounded up to
+    the pool search's radius steps), so far tiles get wider halos and still hold every ball."""
+    cloud = scene() * 3 + np.array([0.0, 0.0, 6.0])  # ranges 3-13 m from the origin
+    estimator = NormalEstimator("pca", radius=0.1, k=60, device="cpu", range_scale=0.03)
+
+    def halo_of(interior: np.ndarray) -> float:
+        return float(estimator.search_radii(np.linalg.norm(cloud[interior], axis=1).max()))
+
+    whole = estimator.estimate(cloud)
+    normals = np.full((len(cloud), 3), np.nan, np.float32)
+    tiles = plan_tiles(cloud, 1500, halo_of)
+    for tile in tiles:
+        normals[tile.interior] = estimator.estimate(cloud[tile.members], tile.query, point_ids=tile.members)[0]
+    np.testing.assert_array_equal(normals, whole[0])
+    assert len({round(halo_of(t.interior), 6) for t in tiles}) > 1  # the halos differ with range
+
+
+def test_a_cloud_without_finite_points_has_no_tiles() -> None:
+    assert plan_tiles(np.full((10, 3), np.nan), 4, lambda interior: 1.0) == []

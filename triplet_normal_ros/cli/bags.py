@@ -150,15 +150,17 @@ def _run_on_ray(args: argparse.Namespace, options: dict, jobs: list[BagJob], clu
 
     outcome = _Outcome()
     with cluster.ray_session(args.address, args.workers or cluster.default_workers(args.device)):
-        outcome.workers, gpu = cluster.worker_count(args.workers, args.device)
-        outcome.where = "this machine" if args.address is None else f"the cluster at {args.address}"
-        pool = cluster.Pool.start(options, outcome.workers, gpu, local=args.address is None)
+        local = args.address is None
+        outcome.workers, gpus_each = cluster.worker_count(args.workers, args.device, local)
+        outcome.where = "this machine" if local else f"the cluster at {args.address}"
+        pool = cluster.Pool.start(options, outcome.workers, gpus_each, local)
         total = sum(job.clouds for job in jobs)
         with tqdm(total=total or None, unit="cloud", desc="bags", disable=None, file=sys.stderr) as bar:
 
             def done(job: BagJob, result: tuple[int, str]) -> None:
                 outcome.done.append(job)
                 outcome.clouds += result[0]
+                bar.write(result[1], file=sys.stdout)  # the bag's own summary line, skipped clouds included
                 bar.update(job.clouds)
                 bar.set_postfix_str(f"{len(outcome.done) + len(outcome.failures)}/{len(jobs)} bags")
 

@@ -40,14 +40,19 @@ def default_workers(device: str) -> int:
     return max(1, (os.cpu_count() or 2) // 2)
 
 
-def worker_count(requested: int | None, device: str) -> tuple[int, bool]:
-    """(workers, whether each takes a GPU) in the running Ray: as asked, else one per GPU when the estimator may use
-    CUDA and the cluster has GPUs, else one per two of its CPUs."""
+def worker_count(requested: int | None, device: str, local: bool) -> tuple[int, float]:
+    """(workers, GPUs each takes) in the running Ray: as asked (a local Ray was started with that many, or with
+    `default_workers`), else one per GPU when the estimator may use CUDA and the cluster has GPUs, else one per two of
+    its CPUs. Workers share the GPUs evenly when there are more of them than GPUs."""
     import ray
 
     resources = ray.cluster_resources()
-    gpus = int(resources.get("GPU", 0)) if device != "cpu" else 0
-    return requested or gpus or max(1, int(resources.get("CPU", 2)) // 2), gpus > 0
+    gpus = resources.get("GPU", 0) if device != "cpu" else 0
+    if local:
+        workers = requested or default_workers(device)
+    else:
+        workers = requested or int(gpus) or max(1, int(resources.get("CPU", 2)) // 2)
+    return workers, min(1.0, gpus / workers) if gpus else 0.0
 
 
 @contextmanager
@@ -58,7 +63,9 @@ def ray_session(address: str | None, workers: int) -> Iterator[None]:
 
     try:
         if address is None:
-            ray.init(num_cpus=workers, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+            ray.init(
+                address="local", num_cpus=workers, include_dashboard=False, logging_level="ERROR", log_to_driver=False
+            )  # "local": a Ray of our own, even beside a running cluster
         else:
             _reachable(address)
             _token_auth()
@@ -80,6 +87,8 @@ def _reachable(address: str) -> None:
     if address == "auto":
         return
     host, _, port = address.rpartition(":")
+    if not port.isdigit():
+        raise ClusterError(f"cannot join the Ray cluster at {address}: give its head as HOST:PORT, or auto")
     try:
         with socket.create_connection((host or "127.0.0.1", int(port)), timeout=CONNECT_TIMEOUT_S):
             return
@@ -139,15 +148,17 @@ class Pool:
     actors: list
 
     @classmethod
-    def start(cls, options: dict, workers: int, gpu: bool, local: bool) -> Pool:
+    def start(cls, options: dict, workers: int, gpus_each: float, local: bool) -> Pool:
         """`workers` actors; torch in each gets the cores divided among them: this machine's (a local Ray counts one
-        CPU per worker, for scheduling), or the cluster's."""
+        CPU per worker, for scheduling), or the cluster's, each actor reserving its share so that Ray spreads them
+        (a fraction of a CPU when there are more workers than CPUs: they still all start)."""
         import ray
 
         cpus = (os.cpu_count() or 1) if local else int(ray.cluster_resources().get("CPU", workers))
         threads = max(1, cpus // workers)
+        reserve = 1 if local else (threads if cpus >= workers else cpus / workers)
         remote = ray.remote(max_restarts=RETRIES, max_task_retries=RETRIES)(_Worker)
-        resources = {"num_cpus": 1, "num_gpus": 1 if gpu else 0}
+        resources = {"num_cpus": reserve, "num_gpus": gpus_each}
         return cls([remote.options(**resources).remote(options, threads) for _ in range(workers)])
 
     def run(self, jobs: Sequence, submit: Callable, done: Callable, failed: Callable) -> None:
@@ -158,17 +169,24 @@ class Pool:
         queue, free, pending = deque(jobs), list(self.actors), {}
         while queue or pending:
             while queue and free:
-                job, actor = queue.popleft(), free.pop()
+                job, actor = queue.popleft(), free.pop(0)
                 pending[submit(actor, job)] = (job, actor)
+            if not pending:  # every worker is gone: the rest cannot run
+                for job in queue:
+                    failed(job, "no worker left: each died more often than Ray restarts it")
+                return
             (ref,), _ = ray.wait(list(pending), num_returns=1)
             job, actor = pending.pop(ref)
-            free.append(actor)
             try:
                 result = ray.get(ref)
-            except ray.exceptions.RayError as error:
+            except ray.exceptions.RayActorError as error:  # the worker is dead for good: it takes no more jobs
                 failed(job, _reason(error))
                 continue
-            done(job, result)
+            except ray.exceptions.RayError as error:
+                failed(job, _reason(error))
+            else:
+                done(job, result)
+            free.append(actor)
 
 
 def _reason(error: BaseException) -> str:

@@ -68,7 +68,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--tile-points",
         type=int,
-        default=TILE_POINTS,
         metavar="P",
         help=f"with --workers/--address: points each tile answers for (default {TILE_POINTS}); bounds worker memory",
     )
@@ -93,17 +92,19 @@ def run(args: argparse.Namespace) -> int:
     out = _output_path(args)
     cloud = read_cloud(args.input)
     query = read_indices(args.indices, len(cloud.points)) if args.indices else np.arange(len(cloud.points))
-    radius = args.radius or (args.radius_rel or RADIUS_FRACTION) * bbox_diagonal(cloud.points)
+    points = cloud.points if args.keep_zeros else without_no_returns(cloud.points)
+    radius = args.radius or (args.radius_rel or RADIUS_FRACTION) * bbox_diagonal(points)
     if not radius > 0:
         raise UsageError(f"{args.input}: the cloud has zero extent, so --radius-rel gives radius 0; pass --radius")
     estimator = checks.make_estimator(args, radius)
-    points = cloud.points if args.keep_zeros else without_no_returns(cloud.points)
     start = time.perf_counter()
-    if args.workers is None and args.address is None:
+    tiled = args.workers is not None or args.address is not None
+    if not tiled:
         normals, curvature = estimate_with_progress(estimator, points, query, shape=(cloud.height, cloud.width))
     else:
         normals, curvature = _tiled(args, estimator, points, query, cloud.height)
     seconds = time.perf_counter() - start
+    method, search = (estimator.method, "tiles on Ray") if tiled else (_method(estimator), estimator.last_run.search)
     if args.viewpoint is not None:
         from ..core.orientation import orient_towards_viewpoint
 
@@ -113,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     valid = int(np.isfinite(normals).all(axis=1).sum())
     summary = (
         f"{args.input}: {len(cloud.points)} points, {len(query)} estimated, {valid} valid, {seconds:.2f} s "
-        f"({_method(estimator)}, radius {radius:.6g}, {estimator.device}, {estimator.last_run.search}) -> {out}"
+        f"({method}, radius {radius:.6g}, {estimator.device}, {search}) -> {out}"
     )
     print(summary, file=sys.stderr if out == "-" else sys.stdout)
     return 0
@@ -135,7 +136,8 @@ def _tiled(args: argparse.Namespace, estimator, points: np.ndarray, query: np.nd
     def halo_of(interior: np.ndarray) -> float:
         return float(estimator.search_radii(np.linalg.norm(points[interior], axis=1).max(initial=0.0)))
 
-    tiles = [t for t in plan_tiles(np.where(finite[:, None], points, np.nan), args.tile_points, halo_of)]
+    tile_points = args.tile_points or TILE_POINTS
+    tiles = [t for t in plan_tiles(np.where(finite[:, None], points, np.nan), tile_points, halo_of)]
     tiles = [t for t in tiles if wanted[t.interior].any()]
     normals = np.full((len(points), 3), np.nan, np.float32)
     curvature = np.full(len(points), np.nan, np.float32)
@@ -143,8 +145,8 @@ def _tiled(args: argparse.Namespace, estimator, points: np.ndarray, query: np.nd
     options.update(radius=estimator.radius, checkpoint=args.checkpoint)
     bar = tqdm(total=len(tiles), unit="tile", disable=None, file=sys.stderr)
     with cluster.ray_session(args.address, args.workers or cluster.default_workers(args.device)), bar:
-        workers, gpu = cluster.worker_count(args.workers, args.device)
-        pool = cluster.Pool.start(options, workers, gpu, local=args.address is None)
+        workers, gpus_each = cluster.worker_count(args.workers, args.device, args.address is None)
+        pool = cluster.Pool.start(options, workers, gpus_each, args.address is None)
         failures: list[str] = []
 
         def submit(actor, tile):
@@ -191,6 +193,8 @@ def _check(args: argparse.Namespace) -> None:
     checks.range_scale(args.range_scale)
     checks.device(args.device)
     checks.at_least("tile-points", args.tile_points, 1)
+    if args.tile_points is not None and args.workers is None and args.address is None:
+        raise UsageError("--tile-points cuts the cloud for --workers or --address; give one of them")
     if args.workers is not None or args.address is not None:
         from . import cluster
 

@@ -1,8 +1,9 @@
 """The per-cloud step: one whole cloud in, one normal and curvature per point out, oriented.
 
-The node, `triplet-normal bag` and `triplet-normal estimate` call `estimate_cloud`, so a cloud gets the same answer
-from each: which points count (no-return zeros, a validity mask), the empty and all-hole shortcuts, the estimate
-itself, and the viewpoint flip live here once.
+The node and `triplet-normal bag` call `estimate_cloud`, so a cloud gets the same answer from each: which points
+count (no-return zeros, a validity mask), the empty and all-hole shortcuts, the estimate itself, and the viewpoint
+flip live here once. `triplet-normal estimate` (query subsets, tiles, files that are not sensor frames) takes the
+no-return rule from here too (`without_no_returns`).
 """
 
 from __future__ import annotations

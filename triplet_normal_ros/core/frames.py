@@ -36,8 +36,8 @@ def principal_frames(cov: torch.Tensor, valid: torch.Tensor) -> tuple[torch.Tens
 #: A neighbourhood whose middle eigenvalue is at most this fraction of its largest lies along a line (or its points
 #: coincide): the plane through it may turn freely about that line, so its normal is unknown and the estimator
 #: answers NaN, where PCL and Open3D publish an arbitrary axis. 1e-2 is a strip a tenth as wide as it is long: a cable,
-#: a sliver beside an edge, one scan line of a LiDAR with its range noise (docs/RESULTS.md, "Degenerate
-#: neighbourhoods", measures what it removes).
+#: a sliver beside an edge, one scan line of a LiDAR with its range noise. docs/RESULTS.md ("LiDAR neighbourhoods,
+#: no-returns and degenerate neighbourhoods") measures what it removes.
 COLLINEAR_RATIO = 1e-2
 
 

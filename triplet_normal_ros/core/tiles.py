@@ -36,7 +36,10 @@ def plan_tiles(points: np.ndarray, max_points: int, halo_of: Callable[[np.ndarra
         raise ValueError(f"max_points must be >= 1, got {max_points}")
     points = np.asarray(points)
     finite = np.flatnonzero(np.isfinite(points).all(axis=1))
-    return [_with_halo(points, finite, leaf, halo_of(leaf)) for leaf in _split(points, finite, max_points)]
+    if len(finite) == 0:
+        return []
+    candidates = points[finite]  # one copy for every tile's halo search
+    return [_with_halo(points, finite, candidates, leaf, halo_of(leaf)) for leaf in _split(points, finite, max_points)]
 
 
 def _split(points: np.ndarray, ids: np.ndarray, max_points: int) -> list[np.ndarray]:
@@ -55,9 +58,12 @@ def _split(points: np.ndarray, ids: np.ndarray, max_points: int) -> list[np.ndar
     return sorted(leaves, key=lambda leaf: int(leaf[0]))
 
 
-def _with_halo(points: np.ndarray, finite: np.ndarray, interior: np.ndarray, halo: float) -> Tile:
-    """The tile of `interior` plus every finite point within `halo` of the interior's bounding box."""
+def _with_halo(
+    points: np.ndarray, finite: np.ndarray, candidates: np.ndarray, interior: np.ndarray, halo: float
+) -> Tile:
+    """The tile of `interior` plus every finite point (`candidates` = points[finite]) within `halo` of the interior's
+    bounding box."""
     coords = points[interior]
     low, high = coords.min(axis=0) - halo, coords.max(axis=0) + halo
-    near = finite[((points[finite] >= low) & (points[finite] <= high)).all(axis=1)]
+    near = finite[((candidates >= low) & (candidates <= high)).all(axis=1)]
     return Tile(np.union1d(near, interior), interior)

@@ -57,6 +57,10 @@ class MethodScore:
     estimated: int = 0
     method: str = ""
 
+    def answered(self) -> float:
+        """The share of queries that got a normal (a missing one scores exactly 90°)."""
+        return float(np.mean(np.concatenate(self.squared) < (np.pi / 2) ** 2 - 1e-9))
+
     def msae(self, edge_only: bool = False) -> float:
         sq, edge = np.concatenate(self.squared), np.concatenate(self.near_edge)
         return float(np.mean(sq[edge] if edge_only else sq)) if (edge.any() or not edge_only) else float("nan")
@@ -145,8 +149,8 @@ def set_markdown(kind: str, scores: list[MethodScore], summary: dict, header: st
     for s in scores:
         share = f"{s.network / s.estimated:.1%}" if s.estimated and s.method != "pca" else "-"
         rows.append(
-            f"| {s.name} | {s.msae():.5f} | {s.msae(True):.5f} | {s.msae() / reference.msae():.3f} "
-            f"| {s.msae() / learned.msae():.3f} | {share} | {s.seconds:.1f} |"
+            f"| {s.name} | {s.answered():.1%} | {s.msae():.5f} | {s.msae(True):.5f} "
+            f"| {s.msae() / reference.msae():.3f} | {s.msae() / learned.msae():.3f} | {share} | {s.seconds:.1f} |"
         )
     return "\n".join(
         [
@@ -154,12 +158,20 @@ def set_markdown(kind: str, scores: list[MethodScore], summary: dict, header: st
             "",
             header,
             f"Frames: {summary['frames']} {spec.title} (docs/RANGE_SCANS.md, seeds 0-{summary['frames'] - 1}), "
-            f"radius {spec.radius} m, {summary['queries']} query pixels (`default_rng({QUERY_SEED})` per frame), "
-            f"{summary['near_edge']} of them within {spec.radius} m of another face (*near edges*). MSAE in rad², "
-            "sign-invariant; neighbourhoods from the whole frame.",
+            f"radius {spec.radius} m{_growth(spec)}, {summary['queries']} query pixels "
+            f"(`default_rng({QUERY_SEED})` per frame), {summary['near_edge']} of them within {spec.radius} m of "
+            "another face (*near edges*). MSAE in "
+            "rad², sign-invariant, a missing normal (no plane in the neighbourhood) scored as 90°; neighbourhoods from "
+            "the whole frame.",
             "",
-            "| method | MSAE | MSAE near edges | / PCA (pool) | / learned | network share | seconds |",
-            "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+            "| method | answered | MSAE | MSAE near edges | / PCA (pool) | / learned | network share | seconds |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
             *rows,
         ]
     )
+
+
+def _growth(spec: RangeSet) -> str:
+    if not spec.range_scale:
+        return ""
+    return f" growing to {spec.range_scale:g} × the range where that is larger (config/lidar.yaml)"

@@ -132,9 +132,12 @@ class ResumableBagWriter:
                 f"{self.partial} holds an unfinished run; pass --resume to continue it or --overwrite to start again"
             )
         shutil.rmtree(self.partial, ignore_errors=True)
-        self.partial.mkdir()
-        (self.partial / _JOB).write_text(json.dumps(job, indent=1, sort_keys=True) + "\n")
-        (self.partial / "segments").mkdir()
+        fresh = self.partial.with_name(self.partial.name + ".new")  # OUT.partial appears whole, with its job.json
+        shutil.rmtree(fresh, ignore_errors=True)
+        fresh.mkdir()
+        (fresh / _JOB).write_text(json.dumps(job, indent=1, sort_keys=True) + "\n")
+        (fresh / "segments").mkdir()
+        fresh.rename(self.partial)
         return 0
 
     def _check_job(self, job: dict[str, Any]) -> None:

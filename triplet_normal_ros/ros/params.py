@@ -83,7 +83,8 @@ SPECS: tuple[ParamSpec, ...] = (
         float,
         defaults.BEND,
         "hybrid: ... and where that quadric departs from the plane by more than this RMS height, as a fraction of "
-        "'radius' (mild sensor waviness stays with PCA); 0 leaves the choice to 'gate' alone.",
+        "the ball's radius ('radius', grown by 'range_scale'; mild sensor waviness stays with PCA); 0 leaves the "
+        "choice to 'gate' alone.",
         (0.0, 1e9),
     ),
     ParamSpec(
