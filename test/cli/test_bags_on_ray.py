@@ -224,3 +224,13 @@ def test_estimate_on_ray_refuses_what_it_cannot_tile_in_one_line(tmp_path: Path,
     status = main(["estimate", str(path), "--out", str(tmp_path / "n.npy"), "--method", "pca", *extra])
     err = capsys.readouterr().err
     assert status in (1, 2) and err.count("\n") == 1 and message in err, err
+
+
+def test_two_bags_that_would_share_an_output_are_refused_before_any_work(tmp_path: Path, capsys) -> None:
+    root = tmp_path / "in"
+    folder = write_bag(root / "run", "mcap", records(1))
+    shutil.copy(next(folder.glob("*.mcap")), root / "run.mcap")  # a bare file beside a bag directory of its name
+    assert main(["bags", str(root), str(tmp_path / "out"), "--workers", "1", *OPTIONS]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "would both be written to" in err
+    assert not (tmp_path / "out").exists()

@@ -107,9 +107,12 @@ def _plan(args: argparse.Namespace) -> tuple[list[BagJob], int]:
     sources = find_bags(args.input)
     if not sources:
         raise UsageError(f"no rosbag2 under {args.input} (a directory with {METADATA}, or a .mcap or .db3 file)")
-    jobs, finished, existing = [], 0, []
+    jobs, finished, existing, claimed = [], 0, [], {}
     for source in sources:
         target = target_for(args.input, args.output, source)
+        if target in claimed:
+            raise UsageError(f"{claimed[target]} and {source} would both be written to {target}; rename one")
+        claimed[target] = source
         if target.exists() and args.resume:
             finished += 1
             continue

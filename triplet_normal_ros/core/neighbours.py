@@ -3,6 +3,7 @@
 from collections.abc import Iterator
 
 import numpy as np
+import torch
 from scipy.spatial import cKDTree
 
 #: Queries are answered in chunks so a (chunk, max_nn) index block stays in the tens of MB.
@@ -55,8 +56,9 @@ class NeighbourIndex:
             if ok.any():
                 out[ok] = self._nearest_chunk(centres[ok], radius, max_nn)
             return out
-        # distance_upper_bound is exclusive, like the paper's ||p_j - p_i|| < r.
-        _, found = self._tree.query(centres, k=max_nn, distance_upper_bound=radius, workers=-1)
+        # distance_upper_bound is exclusive, like the paper's ||p_j - p_i|| < r. As many threads as torch has: a
+        # worker given a share of the cores (cli/cluster.py) keeps to it in the search too.
+        _, found = self._tree.query(centres, k=max_nn, distance_upper_bound=radius, workers=torch.get_num_threads())
         return self._to_original[found.reshape(-1, max_nn)]
 
 
