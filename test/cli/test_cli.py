@@ -197,12 +197,15 @@ def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
     for kind, radius in (("depth", "0.05 m"), ("lidar", "0.25 m")):  # the simulated range images
         block = read_section(doc, f"eval-{kind}")
         assert block is not None and f"radius {radius}" in block
-        cells = [line.split("|")[1:-1] for line in block.splitlines() if line.startswith("| ")]
-        rows = {c[0].strip(): c[1:] for c in cells}
-        assert rows["learned"][3].strip() == "1.000"  # every row is also a ratio to learned
-        share = rows["hybrid (F > 10, bend > 0.03)"][4].strip()
+        cells = [[c.strip() for c in line.split("|")[1:-1]] for line in block.splitlines() if line.startswith("| ")]
+        names = cells[0]  # the header row: each check reads its column by name
+        rows = {c[0]: dict(zip(names, c, strict=True)) for c in cells[2:]}
+        assert rows["learned"]["/ learned"] == "1.000"  # every row is also a ratio to learned
+        share = rows["hybrid (F > 10, bend > 0.03)"]["network share"]
         assert share.endswith("%") and 0 <= float(share[:-1]) < 100  # hybrid says how much went to the network
-        assert rows["learned"][4].strip() == "100.0%" and rows["PCA, k = 30"][4].strip() == "-"
+        assert rows["learned"]["network share"] == "100.0%" and rows["PCA, k = 30"]["network share"] == "-"
+        answered = rows["PCA, window (integral images, the whole ball)"]["answered"]
+        assert answered.endswith("%") and 50 < float(answered[:-1]) <= 100  # the share with a normal
 
 
 def test_eval_without_pcpnet_dir_fails_before_working(tmp_path: Path) -> None:
