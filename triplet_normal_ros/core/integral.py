@@ -55,9 +55,8 @@ ONE_SIDED = (
 #: Below this length (the matrix scaled to unit trace) the largest cross product of two rows of A - λ0 I says no
 #: plane: the smallest eigenvalue is repeated, and the eigenvector answer is NaN rather than an arbitrary axis.
 DEGENERATE_CROSS = 1e-10
-#: Channels of the summed-area table: count, x, y, z, xx, xy, xz, yy, yz, zz, and the pixel row and column with
-#: their squares (whether a window's points span more than one row and one column).
-_CHANNELS = 14
+#: Channels of the summed-area table: count, x, y, z, xx, xy, xz, yy, yz, zz.
+_CHANNELS = 10
 
 
 @dataclass(frozen=True)
@@ -119,8 +118,7 @@ class MomentImage:
     def _moments(self) -> torch.Tensor:
         x, y, z = self.points.unbind(dim=-1)
         one = self.finite.to(torch.float64)
-        row, col = (i.view_as(one) * one for i in _pixel_grid(self.height, self.width, self.device))
-        return torch.stack((one, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z, row, row * row, col, col * col), -1)
+        return torch.stack((one, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z), dim=-1)
 
     def pca(self, radius: float, range_scale: float = 0.0) -> WindowPCA:
         """Window PCA of every pixel at the metric `radius`, with windows that cross no depth discontinuity; with a
@@ -133,7 +131,17 @@ class MomentImage:
         box = _one_sided_where_shrunk(box, half_row, half_col, walls, self.counts, self.height, self.width)
         sums = _box_sums(self.table, *box)
         flat = reach if isinstance(reach, float) else torch.nan_to_num(reach.reshape(-1), nan=radius)
-        return _window_pca(sums, self.offset, box, flat)
+        return _window_pca(sums, self.offset, box, flat, self._spans_lines(box, sums[:, 0]))
+
+    def _spans_lines(self, box: tuple[torch.Tensor, ...], count: torch.Tensor) -> torch.Tensor:
+        """Whether each window's points lie on more than one image row and more than one column. A window holds its
+        own pixel, so its points lie on one row only if they all lie on the pixel's row: two box lookups in the
+        count table tell, one for the window's part of that row and one for its part of that column."""
+        top, bottom, left, right = box
+        row, col = _pixel_grid(self.height, self.width, self.device)
+        on_row = _box_sums(self.counts, row, row, left, right)[:, 0]
+        on_col = _box_sums(self.counts, top, bottom, col, col)[:, 0]
+        return (on_row < count) & (on_col < count)
 
     def _jump_thresholds(self, reach: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
         """The range step that makes a wall between adjacent pixels along a row (between columns) and along a column
@@ -332,25 +340,23 @@ def _one_sided_where_shrunk(box, half_row, half_col, walls: _WallTable, counts, 
 
 
 def _window_pca(
-    sums: torch.Tensor, offset: torch.Tensor, box: tuple[torch.Tensor, ...], reach: torch.Tensor | float
+    sums: torch.Tensor,
+    offset: torch.Tensor,
+    box: tuple[torch.Tensor, ...],
+    reach: torch.Tensor | float,
+    lines: torch.Tensor,
 ) -> WindowPCA:
     """Mean, covariance and its closed-form eigen-decomposition from the moment sums (M, _CHANNELS) of each window."""
     count = sums[:, 0]
-    moments = sums[:, 1:10] / count.clamp_min(1.0).unsqueeze(-1)
+    moments = sums[:, 1:] / count.clamp_min(1.0).unsqueeze(-1)
     mean, second = moments[:, :3], moments[:, 3:]
     mx, my, mz = mean.unbind(dim=-1)
     outer = torch.stack((mx * mx, mx * my, mx * mz, my * my, my * mz, mz * mz), dim=-1)
     cov = second - outer
     eigvals, normal = smallest_eigenvector(cov)
-    lines = _spans_lines(count, sums[:, 10:12]) & _spans_lines(count, sums[:, 12:14])
     valid = (count >= MIN_NEIGHBOURS) & torch.isfinite(normal).all(dim=-1) & lines & spans_plane(eigvals)
     return WindowPCA(normal, eigvals, count, valid, reach, mean + offset, cov, box)
 
-
-def _spans_lines(count: torch.Tensor, index_sums: torch.Tensor) -> torch.Tensor:
-    """Whether a window's points lie on more than one row (or column): n Σi² - (Σi)² is n² times the variance of
-    their integer indices, a whole number at least n - 1 when they differ (exact below 2^53, ample beyond)."""
-    return count * index_sums[:, 1] - index_sums[:, 0].square() > 0.5
 
 
 def ray_noise_normal(fit: WindowPCA) -> torch.Tensor:
