@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -197,6 +196,7 @@ def _reason(error: BaseException) -> str:
 
 
 def check_workers(workers: int | None, address: str | None) -> None:
+    """--workers and --address as given (UsageError, exit 2); whether the address answers is `ray_session`'s."""
     from ..errors import UsageError
 
     if workers is not None and workers < 1:
@@ -204,6 +204,3 @@ def check_workers(workers: int | None, address: str | None) -> None:
     if address is not None and not address.strip():
         raise UsageError("--address must be HOST:PORT or auto")
 
-
-def note(message: str) -> None:
-    print(f"triplet-normal: {message}", file=sys.stderr)

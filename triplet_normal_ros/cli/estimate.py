@@ -129,20 +129,17 @@ def _tiled(args: argparse.Namespace, estimator, points: np.ndarray, query: np.nd
 
     if height > 1:
         raise UsageError(f"{args.input} is organized ({height} rows): one sensor frame; estimate it without --workers")
-    finite = np.isfinite(points).all(axis=1)
     wanted = np.zeros(len(points), bool)
     wanted[query] = True
 
     def halo_of(interior: np.ndarray) -> float:
         return float(estimator.search_radii(np.linalg.norm(points[interior], axis=1).max(initial=0.0)))
 
-    tile_points = args.tile_points or TILE_POINTS
-    tiles = [t for t in plan_tiles(np.where(finite[:, None], points, np.nan), tile_points, halo_of)]
-    tiles = [t for t in tiles if wanted[t.interior].any()]
+    tiles = [t for t in plan_tiles(points, args.tile_points or TILE_POINTS, halo_of) if wanted[t.interior].any()]
     normals = np.full((len(points), 3), np.nan, np.float32)
     curvature = np.full(len(points), np.nan, np.float32)
     options = {k: v for k, v in vars(args).items() if k not in ("handler", "argv", "input", "out", "indices")}
-    options.update(radius=estimator.radius, checkpoint=args.checkpoint)
+    options["radius"] = estimator.radius  # --radius-rel's, resolved here
     bar = tqdm(total=len(tiles), unit="tile", disable=None, file=sys.stderr)
     with cluster.ray_session(args.address, args.workers or cluster.default_workers(args.device)), bar:
         workers, gpus_each = cluster.worker_count(args.workers, args.device, args.address is None)
