@@ -25,7 +25,7 @@ def test_bench_writes_methods_side_by_side_searches_matmul_and_conversion(tmp_pa
         assert cells[2] == ("window" if window else "kdtree") and cells[3] == "300"
         assert float(cells[-1]) > 0 and float(cells[-2]) > 0
         if "k = 30" in cells[1]:
-            assert cells[-1] == "1.0"  # every ratio is against this row, measured in the same run
+            assert float(cells[-1]) == 1.0  # every ratio is against this row, measured in the same run
     gflops = re.search(r"plain float32 matmul (\d+) GFLOP/s", block)
     assert gflops and int(gflops[1]) > 1
     searches = re.findall(r"^\| (kdtree|grid|voxel) \| (\d+) \| [\d.]+ \| (\d+) \|$", block, re.M)

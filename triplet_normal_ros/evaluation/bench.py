@@ -321,7 +321,7 @@ def markdown(rows, searches, gflops, net, conversions, command: str) -> str:
         lines.append(
             f"| {r.cloud} | {r.label} | {r.search} | {r.queries:,} | "
             + " | ".join(r.rate(s) for s in STAGES)
-            + f" | {share_text} | {r.queries / r.wall:,.0f} | {r.cloud_s:.3g} | {r.cloud_s / base.cloud_s:.1f} |"
+            + f" | {share_text} | {r.queries / r.wall:,.0f} | {r.cloud_s:.3g} | {r.cloud_s / base.cloud_s:.2g} |"
         )
     lines += [
         "",
