@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.bags import InputBag
 
     check_options(args)
-    _check_paths(args.input, args.output)
+    check_paths(args.input, args.output)
     resolve_checkpoint(args)
     try:
         with InputBag(args.input) as bag:
@@ -132,10 +132,11 @@ def check_options(args: argparse.Namespace) -> None:
     checks.device(args.device)
 
 
-def _check_paths(source_path: Path, target_path: Path) -> None:
+def check_paths(source_path: Path, target_path: Path, names: tuple[str, str] = ("IN", "OUT")) -> None:
+    """The output must neither be the input, lie inside it, nor contain it (`bags` checks its folders the same way)."""
     source, target = source_path.resolve(), target_path.resolve()
     if source == target or source in target.parents or target in source.parents:
-        raise UsageError(f"OUT {target_path} must lie outside IN {source_path} and not contain it")
+        raise UsageError(f"{names[1]} {target_path} must lie outside {names[0]} {source_path} and not contain it")
 
 
 def _non_negative(name: str, value: float | None) -> None:

@@ -95,9 +95,7 @@ def run(args: argparse.Namespace) -> int:
 def _check_dirs(source: Path, target: Path) -> None:
     if not source.is_dir():
         raise UsageError(f"IN_DIR {source} is not a directory")
-    a, b = source.resolve(), target.resolve()
-    if a == b or a in b.parents or b in a.parents:
-        raise UsageError(f"OUT_DIR {target} must lie outside IN_DIR {source} and not contain it")
+    bag.check_paths(source, target, ("IN_DIR", "OUT_DIR"))
 
 
 def _plan(args: argparse.Namespace) -> tuple[list[BagJob], int]:
