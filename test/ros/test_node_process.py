@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from conftest import PACKAGE, NodeProcess, installed_env, running_node, site_packages
 from helpers import node_answer
 from probe_client import ProbeClient, cropped
@@ -351,7 +352,7 @@ def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, insta
     [
         ({"method": "learned", "checkpoint": "/nonexistent/weights.safetensors"}, "checkpoint not found"),
         ({"method": "pca", "radius": -0.5}, "radius"),
-        ({"method": "pca", "device": "cuda:7"}, "device"),
+        ({"method": "pca", "device": f"cuda:{torch.cuda.device_count()}"}, "device"),  # one past the last GPU
     ],
 )
 def test_startup_errors_are_one_clear_line_and_exit_1(start_node, params: dict, message: str) -> None:

@@ -8,6 +8,7 @@ from dataclasses import fields
 import numpy as np
 import pytest
 import rclpy
+import torch
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
@@ -231,7 +232,7 @@ def test_a_k_override_is_kept_across_a_method_change(context: Context) -> None:
         {"k": 1},
         {"k": -3},
         {"method": "svm"},
-        {"device": "cuda:99"},
+        {"device": f"cuda:{torch.cuda.device_count()}"},  # one past the last GPU
         {"viewpoint": [1.0]},
         {"stats_period": 1.0},
         {"method": "learned", "checkpoint": "/nonexistent/weights.safetensors"},
