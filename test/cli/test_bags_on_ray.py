@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from rosbag_files import CLOUD, STRING, Record, cloud, read_raw, scattered_point
 
 from triplet_normal_ros.cli.bags import find_bags, target_for
 from triplet_normal_ros.cli.main import main
+from triplet_normal_ros.io.bag_output import partial_path
 
 pytestmark = pytest.mark.slow  # Ray starts its own processes
 BIN = Path(sys.executable).parent
@@ -105,15 +107,31 @@ def free_port() -> int:
 
 @pytest.fixture
 def cluster(tmp_path: Path):
-    """A real Ray cluster of one head node, started as users start one, stopped afterwards."""
+    """A real Ray cluster of one head node, started as users start one (`ray start --head`, with --block so that the
+    command stays in the foreground and owns what it starts) in a temp dir of its own. Afterwards only the processes
+    it started are stopped: other Ray sessions of this user keep running."""
     port = free_port()
-    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
-    start = [str(BIN / "ray"), "start", "--head", f"--port={port}", "--num-cpus=2", "--include-dashboard=false"]
-    subprocess.run(start, check=True, env=env, capture_output=True, timeout=120)
+    temp = Path(tempfile.mkdtemp(prefix="ray", dir="/tmp"))  # short: Ray's socket paths must fit in 107 bytes
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "RAY_GRACEFUL_SHUTDOWN_DRAIN_TIMEOUT_S": "0"}
+    start = [str(BIN / "ray"), "start", "--head", "--block", f"--port={port}", "--num-cpus=2"]
+    start += ["--include-dashboard=false", f"--temp-dir={temp}"]
+    log = tmp_path / "ray_head.log"
+    with log.open("w") as sink:
+        head = subprocess.Popen(start, env=env, stdout=sink, stderr=subprocess.STDOUT, text=True)
     try:
+        deadline = time.monotonic() + 120
+        while "Ray runtime started" not in log.read_text() and head.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)  # polling the head's log for the line that says it is up
+        assert "Ray runtime started" in log.read_text() and head.poll() is None, log.read_text()
         yield f"127.0.0.1:{port}"
     finally:
-        subprocess.run([str(BIN / "ray"), "stop", "--force"], env=env, capture_output=True, timeout=120)
+        started = [(pid, _start_time(pid)) for pid in _descendants(head.pid)]
+        head.terminate()  # `ray start --block` stops the processes it started on SIGTERM
+        head.wait(120)
+        for pid, since in started:  # any that outlived it, by PID and start time (never a reused PID)
+            if since is not None and _start_time(pid) == since:
+                os.kill(pid, signal.SIGKILL)
+        shutil.rmtree(temp, ignore_errors=True)
 
 
 def test_bags_join_a_running_cluster_by_address(tmp_path: Path, capsys, cluster: str) -> None:
@@ -129,55 +147,106 @@ def test_bags_join_a_running_cluster_by_address(tmp_path: Path, capsys, cluster:
 
 def test_a_worker_killed_mid_bag_is_restarted_and_nothing_is_lost_or_written_twice(tmp_path: Path) -> None:
     root = tmp_path / "in"
-    source = write_bag(root / "long", "mcap", records(7, clouds=24, points=10_000))
-    options = [*OPTIONS, "--segment-seconds", "0"]
+    clouds = 24
+    source = write_bag(root / "long", "mcap", records(7, clouds=clouds, points=10_000))
+    messages = 2 * clouds  # input messages: each cloud and its string
+    options = [*OPTIONS, "--segment-seconds", "0"]  # a segment closes after each input message
     reference = tmp_path / "reference"
     assert main(["bag", str(source), str(reference), *options]) == 0
     out = tmp_path / "out"
     command = [str(BIN / "triplet-normal"), "bags", str(root), str(out), "--workers", "1", *options]
     run = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    segments = out / "long.partial" / "segments"
-    killed = None
-    deadline = time.monotonic() + 300
-    while killed is None and time.monotonic() < deadline and run.poll() is None:
-        if _closed_segment(segments):
-            killed = _kill_worker(run.pid)  # after a segment closed: the retry must continue from it
-        time.sleep(0.05)  # polling the file system for the moment to strike, not waiting for a result
-    stdout, stderr = run.communicate(timeout=600)
-    assert killed, f"no worker was running the bag: {stderr}"
-    assert run.returncode == 0, stderr
-    assert "resumed at input message" in stdout  # the retried bag continued its own partial output
-    assert "1 of 1 bags (24 clouds) written" in stdout
-    got, want = read_raw(out / "long"), read_raw(reference)
-    assert len(got) == 3 * 24 and got == want  # each cloud, its string and its answer, once
-
-
-def _closed_segment(segments: Path) -> bool:
     try:
-        return any(CLOSED.match(p.name) for p in segments.iterdir())
+        strike = _strike_mid_bag(run.pid, out / "long", deadline=time.monotonic() + 300)
+    finally:
+        stdout, stderr = run.communicate(timeout=600)
+    assert strike is not None, f"the bag ended before its worker could be struck; make it longer: {stdout} {stderr}"
+    done, complete = strike
+    # At the strike the worker was frozen with work left: some input messages kept in closed segments, not all.
+    assert 0 < done < messages and not complete, strike
+    assert run.returncode == 0, stderr
+    # The retried bag continued its own partial output exactly where the killed worker left it.
+    assert f"resumed at input message {done}," in stdout, stdout
+    assert f"1 of 1 bags ({clouds} clouds) written" in stdout
+    got, want = read_raw(out / "long"), read_raw(reference)
+    assert len(got) == 3 * clouds and got == want  # each cloud, its string and its answer, once
+
+
+def _strike_mid_bag(root: int, target: Path, deadline: float) -> tuple[int, bool] | None:
+    """Once a segment of `target` has closed, freeze the Ray worker (started under `root`) that is running the bag,
+    note what it has kept (the end of its closed segments, and whether `target` is complete), and SIGKILL it.
+
+    Returns (end, complete) of the struck bag, or None if the bag ended first."""
+    segments = partial_path(target) / "segments"
+    while time.monotonic() < deadline and _alive(root):
+        worker = _bag_worker(root) if _kept(segments) else None
+        if worker is not None:
+            os.kill(worker, signal.SIGSTOP)
+            while _state(worker) not in ("T", None):  # stopped (or already gone)
+                time.sleep(0.001)
+            kept = _kept(segments), target.exists()
+            os.kill(worker, signal.SIGKILL)
+            return kept
+        time.sleep(0.01)  # polling the file system for the moment to strike, not waiting for a result
+    return None
+
+
+def _kept(segments: Path) -> int:
+    """The end of the closed segments (the input messages [0, end) kept), 0 if none."""
+    try:
+        names = [p.name for p in segments.iterdir()]
     except FileNotFoundError:  # not yet made, or already merged into OUT
-        return False
+        return 0
+    return max((int(name.split("-")[1]) for name in names if CLOSED.match(name)), default=0)
 
 
-def _kill_worker(root: int) -> int | None:
-    """SIGKILL the Ray worker process, started under `root`, that is running a bag, if there is one now."""
-    found = subprocess.run(["pgrep", "-f", "ray::_Worker.bag"], capture_output=True, text=True).stdout.split()
-    for pid in map(int, found):
-        if _descends_from(pid, root):
-            os.kill(pid, signal.SIGKILL)
+def _bag_worker(root: int) -> int | None:
+    """The Ray worker process, started under `root`, that is running a bag now, if there is one."""
+    for pid in _descendants(root):
+        try:
+            title = Path(f"/proc/{pid}/cmdline").read_bytes()
+        except OSError:
+            continue
+        if b"ray::_Worker.bag" in title:
             return pid
     return None
 
 
-def _descends_from(pid: int, root: int) -> bool:
-    while pid > 1:
-        if pid == root:
-            return True
-        try:
-            pid = int(Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[1])
-        except (OSError, ValueError, IndexError):
-            return False
-    return False
+def _stat(pid: int) -> list[str] | None:
+    """Fields of /proc/PID/stat after the command name (state first), or None if there is no such process."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+    except OSError:
+        return None
+
+
+def _state(pid: int) -> str | None:
+    fields = _stat(pid)
+    return None if fields is None else fields[0]
+
+
+def _alive(pid: int) -> bool:
+    return _state(pid) not in (None, "Z")
+
+
+def _start_time(pid: int) -> int | None:
+    fields = _stat(pid)
+    return None if fields is None else int(fields[19])  # field 22 of stat: start time in clock ticks after boot
+
+
+def _descendants(root: int) -> list[int]:
+    """Every process under `root` now, children before grandchildren."""
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        fields = _stat(int(entry.name)) if entry.name.isdigit() else None
+        if fields is not None:
+            children.setdefault(int(fields[1]), []).append(int(entry.name))
+    found, todo = [], [root]
+    while todo:
+        for child in children.get(todo.pop(0), []):
+            found.append(child)
+            todo.append(child)
+    return found
 
 
 def test_an_unreachable_address_is_one_line_and_exit_1(tmp_path: Path, capsys) -> None:
