@@ -3,7 +3,7 @@
 Per query of three simulated depth frames (selection seeds 100-102, every 23rd valid pixel, r = 5 cm): the learned
 normal (KD-tree pool, as `learned` computes it), today's hybrid (the quadric F and bend gate over the 512-point pool,
 pool PCA where it stays shut), the lite checkpoint's learned normal, and the survey's window PCA and ray-noise plane
-(`integral.ray_noise_normal`) with its O(1) cues (`integral.MomentImage.structure`: the parts' heights as a z score
+(`hybrid.ray_noise_normal`) with its O(1) cues (`hybrid.structure`: the parts' heights as a z score
 and a bend). Hybrid on the survey = the network where the gate opens, else the survey's normal.
 Prints one table: MSAE (rad², sign-invariant) and the share sent to the network per gate, beside learned, the
 pool-survey hybrid and the PCAs.
@@ -20,7 +20,9 @@ from gate_study import pool_gate  # the pool hybrid's gate, as the first study c
 
 from triplet_normal_ros.core.conventions import DEPTH_RADIUS, POOL_FACTOR
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.integral import MomentImage, ray_noise_normal
+from triplet_normal_ros.core.hybrid import ray_noise_normal, structure
+from triplet_normal_ros.core.organized import range_pitch
+from triplet_normal_ros.core.windows import MomentImage
 from triplet_normal_ros.evaluation.metrics import angles_rad
 from triplet_normal_ros.simulation.depth_camera import depth_frame
 
@@ -38,10 +40,11 @@ def frame_arrays(seed: int, learned: NormalEstimator, lite: NormalEstimator) -> 
     frame = depth_frame(seed)
     points = frame.points.reshape(-1, 3).astype(np.float64)
     query = np.flatnonzero(np.isfinite(points).all(axis=1))[::STRIDE]
-    image = MomentImage(torch.from_numpy(points), frame.points.shape[:2])
+    cloud, shape = torch.from_numpy(points), frame.points.shape[:2]
+    image = MomentImage(cloud, shape, range_pitch(cloud, shape))
     fit = image.pca(DEPTH_RADIUS)
     ray = ray_noise_normal(fit)
-    cue = image.structure(fit, ray)
+    cue = structure(image, fit, ray)
     variation = fit.eigvals[:, 0] / fit.eigvals.sum(dim=1).clamp_min(1e-30)
     learned.radius = lite.radius = DEPTH_RADIUS
     out = {

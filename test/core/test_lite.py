@@ -36,7 +36,7 @@ def test_lite_is_shipped_and_resolves_by_name():
     path = resolve_checkpoint("lite")
     assert path == shipped_checkpoint_path("lite")
     assert path.is_file()
-    assert path != resolve_checkpoint(None)  # not an alias of the default
+    assert path != resolve_checkpoint("default")  # not an alias of the default
 
 
 def test_lite_metadata_records_the_lite_recipe_and_conventions():

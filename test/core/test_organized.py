@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.organized import GridIndex
+from triplet_normal_ros.core.organized import GridIndex, range_pitch
 
 
 def _pinhole_plane(height: int = 120, width: int = 160, f: float = 130.0, sigma: float = 0.0) -> np.ndarray:
@@ -22,8 +22,8 @@ def _pinhole_plane(height: int = 120, width: int = 160, f: float = 130.0, sigma:
 
 def test_every_sample_is_inside_the_ball_and_the_query_is_its_own_first() -> None:
     points = torch.from_numpy(_pinhole_plane())
-    grid = GridIndex(points, 120, 160)
-    assert grid.usable
+    assert range_pitch(points, (120, 160)) is not None
+    grid = GridIndex(points, 120, 160, range_pitch(points, (120, 160)))
     rows = torch.arange(0, 120 * 160, 37)
     idx = grid.ball(rows, 0.05, 128)
     assert idx.shape == (len(rows), 13 * 13)
@@ -34,7 +34,7 @@ def test_every_sample_is_inside_the_ball_and_the_query_is_its_own_first() -> Non
 
 def test_samples_spread_over_the_whole_ball_rather_than_its_centre() -> None:
     points = torch.from_numpy(_pinhole_plane(480, 640, 525.0))  # a ball of 5 cm spans ~30 pixels each way here
-    grid = GridIndex(points, 480, 640)
+    grid = GridIndex(points, 480, 640, range_pitch(points, (480, 640)))
     rows = torch.tensor([240 * 640 + 320, 100 * 640 + 500])
     idx = grid.ball(rows, 0.05, 128)
     for row, found in zip(rows, idx, strict=True):
@@ -58,7 +58,7 @@ def test_grid_and_kdtree_give_the_same_pca_normals_on_a_noisy_plane() -> None:
 
 def test_a_cloud_not_in_its_sensor_frame_falls_back_to_the_kdtree() -> None:
     cloud = _pinhole_plane() + np.array([0.0, 0.0, -1.3])  # the sensor is no longer at the origin
-    assert not GridIndex(torch.from_numpy(cloud), 120, 160).usable
+    assert range_pitch(torch.from_numpy(cloud), (120, 160)) is None
     estimator = NormalEstimator("pca", radius=0.05, neighbours="grid", device="cpu")
     normals, _ = estimator.estimate(cloud, shape=(120, 160))
     assert estimator.last_run.search == "kdtree" and np.isfinite(normals).all()
@@ -85,7 +85,7 @@ def test_nan_pixels_are_never_neighbours() -> None:
     cloud = _pinhole_plane()
     cloud[::3] = np.nan
     points = torch.from_numpy(cloud)
-    grid = GridIndex(points, 120, 160)
+    grid = GridIndex(points, 120, 160, range_pitch(points, (120, 160)))
     idx = grid.ball(torch.arange(1, 120 * 160, 3), 0.05, 64)
     found = idx[idx >= 0]
     assert len(found) and bool(torch.isfinite(points[found]).all())

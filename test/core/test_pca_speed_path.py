@@ -1,7 +1,7 @@
-"""The fast `pca` path on the KD-tree: `NeighbourIndex.nearest` and `estimator._pool_normals` give the old answers.
+"""The fast `pca` path on the KD-tree: `NeighbourIndex.nearest` and `kernels.pool_normals` give the old answers.
 
-`_pool_normals` (gather by columns, one batched matmul, the closed-form 3 × 3 solver, eigh only where the two smallest
-eigenvalues nearly meet) must agree with `_pool_pca` (masked covariance + eigh), which `hybrid` still uses, and the
+`pool_normals` (gather by columns, one batched matmul, the closed-form 3 × 3 solver, eigh only where the two smallest
+eigenvalues nearly meet) must agree with `pool_pca` (masked covariance + eigh), which `hybrid` still uses, and the
 whole `pca` estimate with a brute-force numpy ball PCA: the nearest k strictly inside the ball, NaN rows for
 non-finite points, for fewer than 3 neighbours and for neighbourhoods that span no plane (`frames.COLLINEAR_RATIO`).
 Correctness only: no timing is asserted.
@@ -12,8 +12,9 @@ import pytest
 import torch
 
 from triplet_normal_ros.core import neighbours
-from triplet_normal_ros.core.estimator import NormalEstimator, _pool_normals, _pool_pca
+from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.frames import COLLINEAR_RATIO, surface_variation
+from triplet_normal_ros.core.kernels import pool_normals, pool_pca
 from triplet_normal_ros.core.neighbours import NeighbourIndex
 
 
@@ -87,10 +88,10 @@ def _pools(points: np.ndarray, radius: float, k: int) -> tuple[torch.Tensor, tor
 
 
 @pytest.mark.parametrize(("radius", "k"), [(0.15, 30), (0.3, 128), (0.02, 8)])
-def test_pool_normals_equal_pool_pca_on_the_same_pools(radius: float, k: int) -> None:
+def testpool_normals_equalpool_pca_on_the_same_pools(radius: float, k: int) -> None:
     cloud, rows, pool = _pools(_noisy_scene(2), radius, k)
-    normal, eigvals, valid = _pool_normals(cloud, cloud[rows], pool, rows)
-    _, _, old_valid, old_eigvals, frame = _pool_pca(cloud, cloud[rows], pool)
+    normal, eigvals, valid = pool_normals(cloud, cloud[rows], pool, rows)
+    _, _, old_valid, old_eigvals, frame = pool_pca(cloud, cloud[rows], pool)
     assert torch.equal(valid, old_valid) and bool((~valid).any())  # some pools hold fewer than 3 points
     ok = valid.numpy()
     np.testing.assert_allclose(np.linalg.norm(normal.numpy()[ok], axis=1), 1.0, atol=1e-12)
@@ -113,8 +114,8 @@ def test_degenerate_pools_take_eigh_and_stay_finite() -> None:
     cloud = torch.from_numpy(points)
     rows = torch.tensor([13, 27 + 4, 27 + 10 + 2])  # the cube's centre, a point of the line, a coincident point
     pool = torch.from_numpy(NeighbourIndex(points).nearest(points[rows.numpy()], 5.0, 40))
-    normal, eigvals, valid = _pool_normals(cloud, cloud[rows], pool, rows)
-    _, _, _, old_eigvals, frame = _pool_pca(cloud, cloud[rows], pool)
+    normal, eigvals, valid = pool_normals(cloud, cloud[rows], pool, rows)
+    _, _, _, old_eigvals, frame = pool_pca(cloud, cloud[rows], pool)
     assert valid.all() and torch.isfinite(normal).all()
     np.testing.assert_allclose(np.linalg.norm(normal.numpy(), axis=1), 1.0, atol=1e-12)
     np.testing.assert_allclose(surface_variation(eigvals).numpy(), [1 / 3, 0.0, 0.0], atol=1e-12)

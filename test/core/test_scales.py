@@ -137,7 +137,7 @@ def test_inlier_seeds_need_a_scale_head():
 
 
 def test_a_pixel_grid_pool_gives_the_fits_a_nearest_point_pool_gives_on_a_dense_plane():
-    from triplet_normal_ros.core.organized import GridIndex
+    from triplet_normal_ros.core.organized import GridIndex, range_pitch
 
     h, w = 120, 160  # a tilted plane seen by a pinhole camera, 2 m away: dense, so every ball is full
     u, v = np.meshgrid((np.arange(w) - w / 2) / 1000, (np.arange(h) - h / 2) / 1000)  # 2 mm pixels
@@ -148,7 +148,7 @@ def test_a_pixel_grid_pool_gives_the_fits_a_nearest_point_pool_gives_on_a_dense_
     cloud, radius, k = torch.from_numpy(frame), 0.05, 128
     pools = {
         "kdtree": torch.from_numpy(NeighbourIndex(frame).ball(frame[rows], radius, 4 * k)[0]),
-        "grid": GridIndex(cloud, h, w).ball(torch.from_numpy(rows), radius, 4 * k),
+        "grid": GridIndex(cloud, h, w, range_pitch(cloud, (h, w))).ball(torch.from_numpy(rows), radius, 4 * k),
     }
     assert pools["grid"].shape[1] > 4 * k  # the grid's pool array is wider than the pool it stands for
     fits = {

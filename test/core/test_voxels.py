@@ -7,8 +7,10 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from triplet_normal_ros.core.estimator import NormalEstimator, open_search
+from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.neighbours import NeighbourIndex
+from triplet_normal_ros.core.plan import make_plan
+from triplet_normal_ros.core.settings import Settings
 from triplet_normal_ros.core.voxels import VoxelIndex
 from triplet_normal_ros.evaluation.bench import torus_cloud
 
@@ -150,10 +152,9 @@ def test_the_estimator_with_voxel_gives_the_kdtree_normals(method: str) -> None:
 
 
 def test_auto_picks_voxel_for_unorganized_clouds_on_a_gpu_and_the_kdtree_on_a_cpu() -> None:
-    """The choice alone: a CUDA device is pretended for the decision; the indices are built on CPU tensors."""
-    points = torus_cloud(600)
-    cloud = torch.from_numpy(points)
-    cpu, cuda = torch.device("cpu"), torch.device("cuda")
-    assert open_search(points, cloud, None, "auto", cpu).name == "kdtree"
-    assert open_search(points, cloud, None, "auto", cuda).name == "voxel"
-    assert open_search(points, cloud, (20, 30), "auto", cuda).name == "voxel"  # organized, not a range image: no grid
+    """The choice alone (`plan.make_plan`), for a CUDA device that need not exist."""
+    auto = Settings(method="pca", k=30)
+    assert make_plan(auto, "cpu", organized=False, range_image=False).search == "kdtree"
+    assert make_plan(auto, "cuda", organized=False, range_image=False).search == "voxel"
+    assert make_plan(auto, "cuda", organized=True, range_image=False).search == "voxel"  # not a range image: no grid
+    assert make_plan(auto, "cuda", organized=True, range_image=True).search == "grid"

@@ -17,7 +17,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", metavar="D", help="the device the package's methods run on (default: cpu)")
     p.add_argument("--method", choices=METHODS, help="only this method (default: all)")
     p.add_argument("--queries", type=int, default=5000, metavar="M", help="query points timed per cloud (5000)")
-    p.add_argument("--checkpoint", metavar="C", help="checkpoint (default: the shipped one)")
+    p.add_argument(
+        "--checkpoint", metavar="C", help="checkpoint of the network rows (default: the shipped 'default' and 'lite')"
+    )
     p.add_argument("--out", type=Path, metavar="MD", help="results markdown to update (e.g. docs/RESULTS.md)")
     p.add_argument(
         "--no-anchors", action="store_true", help="do not time Open3D / OpenCV even when they import (default: do)"

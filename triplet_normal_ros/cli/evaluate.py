@@ -20,7 +20,9 @@ DEFAULT_PCPNET_DIR = Path("../shared/data/pcpnet")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--checkpoint", metavar="C", help="checkpoint to evaluate (default: the shipped one)")
+    p.add_argument(
+        "--checkpoint", metavar="C", default="default", help="checkpoint to evaluate (default: the shipped 'default')"
+    )
     p.add_argument("--device", default="auto", metavar="D", help="auto, cpu, cuda or cuda:N (default auto)")
     p.add_argument("--points-per-cloud", type=int, default=5000, metavar="N", help="query points per cloud (5000)")
     p.add_argument(

@@ -33,10 +33,11 @@ def shipped_checkpoint_path(name: str) -> Path:
     return Path(str(ref))
 
 
-def resolve_checkpoint(spec: str | Path | None) -> Path:
-    """A shipped checkpoint's name (or None/'' for the default) or a file path -> an existing path."""
+def resolve_checkpoint(spec: str | Path) -> Path:
+    """A shipped checkpoint's name or a file path -> an existing path. An empty checkpoint setting means the shipped
+    one for the device, which the plan resolves to a name first (`plan.checkpoint_for`)."""
     if not spec:
-        return default_checkpoint_path()
+        raise CheckpointError("no checkpoint named: give a path or a shipped name (" + ", ".join(SHIPPED) + ")")
     if isinstance(spec, str) and spec in SHIPPED:
         return shipped_checkpoint_path(spec)
     return _existing(spec)
@@ -96,7 +97,7 @@ def _check_conventions(path: Path, recorded: object) -> None:
         raise CheckpointError(f"{path} was trained under other conventions: {', '.join(changed)}")
 
 
-def load_checkpoint(path: str | Path | None, device: torch.device | str = "cpu") -> tuple[TripletNormalNet, dict]:
+def load_checkpoint(path: str | Path, device: torch.device | str = "cpu") -> tuple[TripletNormalNet, dict]:
     """Rebuild the model in eval mode on `device`; any defect becomes one CheckpointError."""
     path = resolve_checkpoint(path)
     meta = read_metadata(path)

@@ -1,10 +1,11 @@
-"""The node's defaults, defined once: the node's parameters and `triplet-normal bag` start from these, so a bag
-processed offline gets what the node would have published, and `config/params.yaml` is checked against them.
+"""Every default, defined once: the estimator (`settings.Settings`), the node's parameters, `triplet-normal
+estimate`, `bag` and `bags` start from these, so a cloud gets the same answer from each, and the YAML presets under
+config/ are checked against them (the LiDAR preset's values are `LIDAR`).
 
 Pure Python (no torch): the CLI reads them to build `--help`.
 """
 
-from .conventions import DEPTH_RADIUS, HYBRID_BEND, HYBRID_GATE
+from .conventions import DEPTH_RADIUS, HYBRID_BEND, HYBRID_GATE, LIDAR_RADIUS, LIDAR_RANGE_SCALE
 
 #: The estimator the node runs unless told otherwise: PCA everywhere, the network near edges and folds.
 METHOD = "hybrid"
@@ -17,6 +18,8 @@ SHIPPED_FOR_DEVICE = {"cuda": "default", "cpu": "lite"}
 DEVICE = "auto"
 #: Patches per forward pass; also bounds the cancel latency on a CPU.
 BATCH_SIZE = 256
+#: Seeds the network's subsample of each pool (a hash of point, neighbour and seed), so answers repeat exactly.
+SEED = 0
 #: The ball radius in metres: what depth-camera pipelines use, and what training and evaluation score at.
 RADIUS = DEPTH_RADIUS
 #: 0 means the method's default: the checkpoint's k for the network methods, PCA_DEFAULT_K for pca.
@@ -32,6 +35,8 @@ ZEROS_ARE_NO_RETURNS = True
 #: Normals face the viewpoint (PCL's flipNormalTowardsViewpoint); the origin of the cloud's frame is the sensor.
 ORIENT = True
 VIEWPOINT = (0.0, 0.0, 0.0)
+#: The settings config/lidar.yaml sets on top of these (a spinning LiDAR: a wider ball that grows with range).
+LIDAR = {"radius": LIDAR_RADIUS, "range_scale": LIDAR_RANGE_SCALE}
 
 
 def shipped_checkpoint(device_type: str) -> str:

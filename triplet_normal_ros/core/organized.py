@@ -11,7 +11,8 @@ axis), not the nearest ``max_nn`` points: on a dense depth frame a nearest-512 p
 ball, while training patches (uniform samples of CAD shapes) see the whole ball. docs/DESIGN.md shows the comparison.
 
 The window size assumes the cloud is in the sensor's frame (sensor at the origin), as drivers publish organized
-clouds. `GridIndex.usable` says whether the cloud looks like that; the estimator falls back to the KD-tree otherwise.
+clouds. `range_pitch` says whether the cloud looks like that (the plan takes pools from a KD-tree otherwise) and
+measures the angular spacing that both this search and the integral-image windows size themselves by.
 """
 
 from __future__ import annotations
@@ -19,6 +20,9 @@ from __future__ import annotations
 import math
 
 import torch
+
+#: (per-row pitch (H,), per-column pitch (W,)): the angle between adjacent pixel rays of a range image.
+RangePitch = tuple[torch.Tensor, torch.Tensor]
 
 #: A sensor-frame range image has near-constant angular pitch; beyond this max/min spread (robust quantiles) of the
 #: adjacent-ray angles the cloud is not in its sensor's frame (or not a range image) and the KD-tree is used.
@@ -32,20 +36,14 @@ _PITCH_SAMPLES = 200_000
 class GridIndex:
     """Neighbour search through the (height, width) pixel grid of one organized cloud, on `points`' device."""
 
-    def __init__(self, points: torch.Tensor, height: int, width: int) -> None:
+    def __init__(self, points: torch.Tensor, height: int, width: int, pitch: RangePitch) -> None:
         if points.ndim != 2 or points.shape != (height * width, 3):
             raise ValueError(f"points {tuple(points.shape)} do not form a {height}x{width} organized cloud")
         self.height, self.width = height, width
         self.points = points.to(torch.float32)  # sensor data is float32; the ball test needs no more
         self.finite = torch.isfinite(points).all(dim=1)
         self.range = torch.where(self.finite, points.norm(dim=1), torch.inf)
-        grid = points.view(height, width, 3)
-        self.pitch = (ray_pitch(grid, 0), ray_pitch(grid, 1))  # per row (between rows r, r+1), per column
-
-    @property
-    def usable(self) -> bool:
-        """Whether the cloud looks like a range image in its sensor's frame (see MAX_PITCH_SPREAD)."""
-        return all(p is not None for p in self.pitch)
+        self.pitch = pitch  # per row (between rows r, r+1), per column
 
     def ball(self, rows: torch.Tensor, radius: float, samples: int) -> torch.Tensor:
         """Indices (M, side²) of about `samples` points spread uniformly over each query's ball, -1 padded.
@@ -58,8 +56,6 @@ class GridIndex:
         at a grazing angle, a few pixels tall, is still sampled on several rows instead of one line. The query point
         itself is always a sample.
         """
-        if not self.usable:
-            raise ValueError("the cloud is not a sensor-frame range image; use the KD-tree")
         half = _odd_side(math.ceil(samples * 4 / math.pi)) // 2
         # The ball's half-angle as seen from the sensor: a neighbour may be up to `radius` nearer than the query.
         reach = radius / (self.range[rows] - radius).clamp_min(radius)
@@ -101,6 +97,14 @@ def _spiral_offsets(half: int, device: torch.device) -> torch.Tensor:
     grid = torch.stack(torch.meshgrid(span, span, indexing="ij"), dim=-1).reshape(-1, 2)
     order = torch.argsort((grid * grid).sum(dim=1) * (grid.shape[0] + 1) + torch.arange(len(grid), device=device))
     return grid[order]
+
+
+def range_pitch(cloud: torch.Tensor, shape: tuple[int, int]) -> RangePitch | None:
+    """The angular pitch of each pixel row and column of an organized cloud (H·W, 3), or None when the cloud is not a
+    range image in its sensor's frame: the one test of whether pixel neighbours are 3D neighbours."""
+    grid = cloud.view(*shape, 3)
+    row, col = ray_pitch(grid, 0), ray_pitch(grid, 1)
+    return None if row is None or col is None else (row, col)
 
 
 def ray_pitch(grid: torch.Tensor, axis: int) -> torch.Tensor | None:

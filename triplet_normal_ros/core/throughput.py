@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .estimator import NormalEstimator
+from .plan import Plan
 
 #: The probe image (height, width): enough points to time the network, few enough to keep start-up within seconds.
 PROBE_SHAPE = (60, 80)
@@ -31,24 +32,20 @@ FRAME_POINTS = 640 * 480
 class Throughput:
     points_per_second: float
     network_share: float
-    search: str = "kdtree"
+    #: The path the probe took: an organized camera frame's (`plan.Plan`).
+    plan: Plan
+
+    @property
+    def search(self) -> str:
+        return self.plan.path
 
     def describe(self, device: str) -> str:
         frame = FRAME_POINTS / self.points_per_second
         share = f", {self.network_share:.0%} of probe points through the network" if self.network_share else ""
         return (
             f"expected throughput on {device}: about {self.points_per_second:,.0f} points/s "
-            f"(~{frame:.1f} s for a full 640x480 organized frame, {PATHS.get(self.search, self.search)}{share})"
+            f"(~{frame:.1f} s for a full 640x480 organized frame; {self.plan.describe()}{share})"
         )
-
-
-#: How the start-up line names each path (`RunInfo.search`).
-PATHS = {
-    "window": "integral-image windows",
-    "grid": "pixel-grid pools",
-    "voxel": "cell-list pools",
-    "kdtree": "KD-tree pools",
-}
 
 
 def measure(estimator: NormalEstimator, seed: int = 0) -> Throughput:
@@ -59,7 +56,7 @@ def measure(estimator: NormalEstimator, seed: int = 0) -> Throughput:
     estimator.estimate(cloud, shape=PROBE_SHAPE)
     seconds = max(time.perf_counter() - start, 1e-9)
     run = estimator.last_run
-    return Throughput(len(cloud) / seconds, run.network_fraction, run.search)
+    return Throughput(len(cloud) / seconds, run.network_fraction, run.plan)
 
 
 def probe_cloud(radius: float, seed: int = 0) -> np.ndarray:

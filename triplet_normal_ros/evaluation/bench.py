@@ -55,6 +55,7 @@ class Row:
     network_share: float = 0.0
     msae: float | None = None  # at the timed query points, against the cloud's exact normals when it has them
     invalid: int | None = None
+    path: str = ""  # the plan's steps (`plan.Plan.steps`)
 
     def rate(self, stage: str) -> str:
         t = self.timings.get(stage)
@@ -85,8 +86,8 @@ def timed_methods(checkpoint: str | None, method: str | None) -> list[tuple[str,
     rows = [
         (f"pca, k = {PCA_SMALL_K}", {"method": "pca", "k": PCA_SMALL_K}),
         ("pca, k = 512 (the learned pool)", {"method": "pca", "k": 512}),
-        ("learned", {"method": "learned", "checkpoint": checkpoint}),
-        ("hybrid", {"method": "hybrid", "checkpoint": checkpoint}),
+        ("learned", {"method": "learned", "checkpoint": checkpoint or "default"}),
+        ("hybrid", {"method": "hybrid", "checkpoint": checkpoint or "default"}),
     ]
     if checkpoint is None and "lite" in SHIPPED:
         rows += [
@@ -142,7 +143,7 @@ def bench_one(
     if options["method"] == "pca" and info.search == "window":
         cloud_s = wall  # the integral image answers every pixel whatever the query: one call costs the whole cloud
     row = Row(cloud, label, options["method"], info.search, str(estimator.device), len(query), len(valid), wall,
-              cloud_s, timings, share)
+              cloud_s, timings, share, path=info.plan.steps)
     if truth is not None:
         row.msae, row.invalid = msae(normals, truth[query]), invalid_count(normals)
     return row
@@ -152,7 +153,8 @@ def neighbour_rows(points: np.ndarray, shape, device: str, queries: int) -> list
     """(search, pool, seconds per query, mean neighbours) of the KD-tree and the pixel grid on the depth frame."""
     import torch
 
-    from ..core.estimator import open_search
+    from ..core.organized import range_pitch
+    from ..core.search import open_search
 
     valid = np.flatnonzero(np.isfinite(points).all(axis=1))
     rows = torch.from_numpy(np.sort(np.random.default_rng(0).choice(valid, min(queries, len(valid)), replace=False)))
@@ -161,7 +163,8 @@ def neighbour_rows(points: np.ndarray, shape, device: str, queries: int) -> list
     for pool in (PCA_SMALL_K, POOL_FACTOR * 128):
         for name in ("kdtree", "grid", "voxel"):
             start = time.perf_counter()
-            search = open_search(points, torch.from_numpy(points.astype(np.float64)).to(dev), shape, name, dev)
+            cloud = torch.from_numpy(points.astype(np.float64)).to(dev)
+            search = open_search(name, points, cloud, shape, range_pitch(cloud, shape), dev)
             found = 0
             for lo in range(0, len(rows), 4096):
                 found += int((search.pool(rows[lo : lo + 4096].to(dev), DEPTH_RADIUS, pool) >= 0).sum())
@@ -186,7 +189,7 @@ def network_mflop(checkpoint: str | None) -> tuple[int, float]:
     """(k, MFLOP per patch) of the checkpoint's network, by arithmetic from its layer widths."""
     from ..core.checkpoint import read_metadata, resolve_checkpoint
 
-    meta = read_metadata(resolve_checkpoint(checkpoint))
+    meta = read_metadata(resolve_checkpoint(checkpoint or "default"))
     widths = [3, *meta["architecture"]["encoder"]]
     head = [widths[-1], *meta["architecture"]["regressor"], 3]
     per_point = sum(a * b for a, b in itertools.pairwise(widths))
@@ -311,7 +314,7 @@ def markdown(rows, searches, gflops, net, conversions, command: str) -> str:
         "building the search, moving the cloud) + the per-query cost × every valid point; *× PCA-30* is that time over "
         "PCA at k = 30 on the same cloud in this run.",
         "",
-        "| cloud | method | search | timed | neighbours pts/s | pca | gate | patches | network | network share "
+        "| cloud | method | path | timed | neighbours pts/s | pca | gate | patches | network | network share "
         "| total pts/s | s per cloud | × PCA-30 |",
         "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
@@ -319,7 +322,7 @@ def markdown(rows, searches, gflops, net, conversions, command: str) -> str:
         base = next(b for b in rows if b.cloud == r.cloud and b.label.startswith(f"pca, k = {PCA_SMALL_K}"))
         share_text = f"{r.network_share:.0%}" if r.method != "pca" else "-"
         lines.append(
-            f"| {r.cloud} | {r.label} | {r.search} | {r.queries:,} | "
+            f"| {r.cloud} | {r.label} | {r.path} | {r.queries:,} | "
             + " | ".join(r.rate(s) for s in STAGES)
             + f" | {share_text} | {r.queries / r.wall:,.0f} | {r.cloud_s:.3g} | {r.cloud_s / base.cloud_s:.2g} |"
         )

@@ -196,6 +196,7 @@ def run(
     from . import range_eval
     from .report import update_section
 
+    checkpoint = checkpoint or "default"  # eval scores the shipped default unless told otherwise
     per_cloud = min(points_per_cloud, 200) if quick else points_per_cloud
     if not quick and "pcpnet" in sets:
         pcpnet_shapes_present(pcpnet_dir)
@@ -256,12 +257,12 @@ def _heatmap(results: list[CloudScores], path: Path) -> tuple[Path, CloudScores]
 # ---------------------------------------------------------------- markdown
 
 
-def _header(command: str, checkpoint: str | None, quick: bool, scorer: CloudScorer, per_cloud: int) -> str:
+def _header(command: str, checkpoint: str, quick: bool, scorer: CloudScorer, per_cloud: int) -> str:
     meta = scorer.ours.metadata
     trained_by = meta.get("training", {}).get("command") if isinstance(meta.get("training"), dict) else None
     lines = [
         f"Command: `{command}`" + (" (**--quick subset: not a result**)" if quick else ""),
-        f"Checkpoint: `{checkpoint or 'shipped default'}` (sha256 {_sha256(checkpoint)[:12]}, "
+        f"Checkpoint: `{checkpoint}` (sha256 {_sha256(checkpoint)[:12]}, "
         f"k = {scorer.ours.k}"
         + (f", trained by `{trained_by}`" if trained_by else "")
         + f") · device {scorer.ours.device} · {per_cloud} query points per cloud, fixed seed "
@@ -275,7 +276,7 @@ def _header(command: str, checkpoint: str | None, quick: bool, scorer: CloudScor
     return "\n".join(lines)
 
 
-def _sha256(checkpoint: str | None) -> str:
+def _sha256(checkpoint: str) -> str:
     import hashlib
 
     from ..core.checkpoint import resolve_checkpoint

@@ -75,7 +75,7 @@ def range_estimators(
     lite checkpoint learned and hybrid. Every one grows its ball with `range_scale`."""
     from ..core.checkpoint import SHIPPED
 
-    rows = _range_rows(checkpoint, device, k, radius, SHIPPED)
+    rows = _range_rows(checkpoint or "default", device, k, radius, SHIPPED)
     for estimator in rows.values():
         estimator.range_scale = range_scale
     return rows
@@ -94,7 +94,7 @@ def _range_rows(checkpoint, device: str, k: int | None, radius: float, shipped) 
         "learned": learned,
         f"hybrid (F > {hybrid.gate:g}, bend > {hybrid.bend:g})": hybrid,
     }
-    if checkpoint is None and "lite" in shipped:
+    if checkpoint == "default" and "lite" in shipped:
         rows["learned, lite"] = NormalEstimator("learned", radius=radius, checkpoint="lite", device=device)
         rows["hybrid, lite"] = NormalEstimator("hybrid", radius=radius, checkpoint="lite", device=device)
     return rows

@@ -4,7 +4,8 @@ A depth image or a LiDAR range image keeps its points in sensor order, so a metr
 order, a pixel window whose half-widths are the ball's angular radius (r / range) over the image's angular spacing per
 axis. Summed-area tables (integral images) of 1, x, y, z and the six products give any window's count, mean and
 covariance in a few dozen operations, whatever its size, and a closed-form 3×3 eigensolver gives the normal: PCL's
-IntegralImageNormalEstimation (COVARIANCE_MATRIX mode), in torch so a GPU runs the same code.
+IntegralImageNormalEstimation (COVARIANCE_MATRIX mode), in torch so a GPU runs the same code. Hybrid's survey
+reads the same tables (`hybrid.py`).
 
 Windows never cross a depth discontinuity. Between two valid pixels of a row (or column) whose ranges jump by more
 than the jump threshold, across any holes between them, stands a wall; each pixel takes the largest window (scaled
@@ -21,13 +22,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import torch
 
 from .conventions import MIN_NEIGHBOURS
+from .eigen import smallest_eigenvector
 from .frames import spans_plane
-from .organized import ray_pitch
+from .organized import RangePitch
 
 #: A square window of half-width h covers the area of a disc of radius h × 2 / sqrt(pi); windows are sized to the
 #: ball's disc by area, so a plane gets about as many points as the ball would give it.
@@ -52,9 +53,6 @@ ONE_SIDED = (
     (1, 0, 1, 1), (0, 1, 1, 1), (1, 1, 1, 0), (1, 1, 0, 1),
     (1, 0, 1, 0), (1, 0, 0, 1), (0, 1, 1, 0), (0, 1, 0, 1),
 )  # fmt: skip
-#: Below this length (the matrix scaled to unit trace) the largest cross product of two rows of A - λ0 I says no
-#: plane: the smallest eigenvalue is repeated, and the eigenvector answer is NaN rather than an arbitrary axis.
-DEGENERATE_CROSS = 1e-10
 #: Channels of the summed-area table: count, x, y, z, xx, xy, xz, yy, yz, zz.
 _CHANNELS = 10
 
@@ -76,26 +74,16 @@ class WindowPCA:
     box: tuple[torch.Tensor, ...]  # (top, bottom, left, right) (N,) each: the window each pixel used
 
 
-class Structure(NamedTuple):
-    """How far each window departs from its own PCA plane, measured by the centroids of its parts (`structure`)."""
-
-    #: Largest |height| of a part's centroid above the window's plane over the part's noise standard error: is the
-    #: departure significant? About 1-3 on any plane, whatever its noise; large across a fold or an edge.
-    z: torch.Tensor
-    #: That largest height in units of the window's reach (the radius): is the departure large?
-    bend: torch.Tensor
-
-
 class MomentImage:
     """Summed-area tables of an organized cloud's moments, and the windows each pixel may use.
 
-    `cloud` (H·W, 3) on the device, NaN where there is no point; `shape` = (H, W). The angular spacing of each pixel
-    row and column is measured from the data (`organized.ray_pitch`, as the pixel-grid search measures it), so depth
-    cameras of any intrinsics and range images of any LiDAR work without calibration; a cloud that is not a range
-    image in its sensor's frame is not `usable`.
+    `cloud` (H·W, 3) on the device, NaN where there is no point; `shape` = (H, W); `pitch` the angular spacing of
+    each pixel row and column, measured from the data (`organized.range_pitch`, which also decides whether the cloud
+    is a range image at all), so depth cameras of any intrinsics and range images of any LiDAR work without
+    calibration.
     """
 
-    def __init__(self, cloud: torch.Tensor, shape: tuple[int, int]) -> None:
+    def __init__(self, cloud: torch.Tensor, shape: tuple[int, int], pitch: RangePitch) -> None:
         self.height, self.width = shape
         self.device = cloud.device
         points = cloud.to(torch.float64).view(self.height, self.width, 3)
@@ -103,17 +91,10 @@ class MomentImage:
         self.range = torch.where(self.finite, points.norm(dim=-1), torch.nan)
         self.offset = points[self.finite].mean(dim=0) if bool(self.finite.any()) else points.new_zeros(3)
         self.points = torch.where(self.finite.unsqueeze(-1), points - self.offset, 0.0)
-        self.pitch_row, self.pitch_col = ray_pitch(points, 0), ray_pitch(points, 1)
-        if not self.usable:  # not a range image in its sensor's frame: the caller takes pools, so no tables
-            return
+        self.pitch_row, self.pitch_col = pitch
         self.table = _summed_area(self._moments())
         self.counts = self.table[..., :1].contiguous()
         self.first = self.table[..., :4].contiguous()  # count and sums of x, y, z: what a part's centroid needs
-
-    @property
-    def usable(self) -> bool:
-        """Whether the cloud looks like a range image in its sensor's frame (see `organized.MAX_PITCH_SPREAD`)."""
-        return self.pitch_row is not None and self.pitch_col is not None
 
     def _moments(self) -> torch.Tensor:
         x, y, z = self.points.unbind(dim=-1)
@@ -129,7 +110,7 @@ class MomentImage:
         walls = _WallTable(self.range, *self._jump_thresholds(reach))
         box = _largest_clear_boxes(half_row, half_col, walls, self.height, self.width)
         box = _one_sided_where_shrunk(box, half_row, half_col, walls, self.counts, self.height, self.width)
-        sums = _box_sums(self.table, *box)
+        sums = box_sums(self.table, *box)
         flat = reach if isinstance(reach, float) else torch.nan_to_num(reach.reshape(-1), nan=radius)
         return _window_pca(sums, self.offset, box, flat, self._spans_lines(box, sums[:, 0]))
 
@@ -139,8 +120,8 @@ class MomentImage:
         count table tell, one for the window's part of that row and one for its part of that column."""
         top, bottom, left, right = box
         row, col = _pixel_grid(self.height, self.width, self.device)
-        on_row = _box_sums(self.counts, row, row, left, right)[:, 0]
-        on_col = _box_sums(self.counts, top, bottom, col, col)[:, 0]
+        on_row = box_sums(self.counts, row, row, left, right)[:, 0]
+        on_col = box_sums(self.counts, top, bottom, col, col)[:, 0]
         return (on_row < count) & (on_col < count)
 
     def _jump_thresholds(self, reach: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -152,51 +133,6 @@ class MomentImage:
             fraction = (GRAZING_TAN * pitch.to(torch.float64)).clamp_min(JUMP_RANGE_FRACTION)
             thresholds.append(torch.maximum(self.range * fraction, floor))
         return thresholds[0], thresholds[1]
-
-    def structure(self, fit: WindowPCA, normal: torch.Tensor | None = None) -> Structure:
-        """The O(1) cue of hybrid's gate: where a quadric would beat the plane, parts of the window sit off it.
-
-        Each window is cut into five parts (its upper, lower, left and right halves, and its central quarter). On a
-        plane every part's centroid lies on the window's PCA plane up to noise; across a fold or an edge the halves
-        on either side and the centre sit above or below it by a fraction of the radius. The heights come from the
-        first-moment sums of the parts, so the cue costs five box lookups per pixel, not a neighbourhood. Heights run
-        along `normal` (default: PCA's), the noise is the window's variance along it; pass the survey's normal, or a
-        noise-dominated window measures its heights along whichever in-plane axis PCA mistook for the normal."""
-        top, bottom, left, right = fit.box
-        mid_row, mid_col = (
-            torch.div(top + bottom, 2, rounding_mode="floor"),
-            torch.div(left + right, 2, rounding_mode="floor"),
-        )
-        quarter_row = torch.div(bottom - top + 2, 4, rounding_mode="floor")
-        quarter_col = torch.div(right - left + 2, 4, rounding_mode="floor")
-        parts = (
-            (top, mid_row, left, right),
-            (mid_row + 1, bottom, left, right),
-            (top, bottom, left, mid_col),
-            (top, bottom, mid_col + 1, right),
-            (mid_row - quarter_row + 1, mid_row + quarter_row, mid_col - quarter_col + 1, mid_col + quarter_col),
-        )
-        first = self.first
-        normal = fit.normal if normal is None else normal
-        a00, a01, a02, a11, a12, a22 = fit.cov.unbind(dim=-1)
-        nx, ny, nz = normal.unbind(dim=-1)
-        noise = (
-            a00 * nx * nx + a11 * ny * ny + a22 * nz * nz + 2 * (a01 * nx * ny + a02 * nx * nz + a12 * ny * nz)
-        ).clamp_min(0)
-        z = torch.zeros_like(fit.count)
-        bend = torch.zeros_like(fit.count)
-        centroid = fit.mean - self.offset
-        for part in parts:
-            lows, highs = (top, top, left, left), (bottom, bottom, right, right)
-            part = tuple(b.clamp(lo, hi) for b, lo, hi in zip(part, lows, highs, strict=True))
-            sums = _box_sums(first, *part)
-            n = sums[:, 0]
-            height = ((sums[:, 1:] / n.clamp_min(1).unsqueeze(-1) - centroid) * normal).sum(dim=-1).abs()
-            spread = torch.sqrt(noise * (1 / n.clamp_min(1) - 1 / fit.count.clamp_min(1)).clamp_min(0))
-            ok = (n >= MIN_NEIGHBOURS) & (n < fit.count)
-            z = torch.where(ok, torch.maximum(z, height / spread.clamp_min(1e-12)), z)
-            bend = torch.where(ok, torch.maximum(bend, height / fit.reach), bend)
-        return Structure(z, bend)
 
     def _half_widths(self, reach: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
         """Half-widths in pixels per axis: the ball's angular radius over each axis' angular step (0 for holes)."""
@@ -218,7 +154,7 @@ def _summed_area(channels: torch.Tensor) -> torch.Tensor:
     return table
 
 
-def _box_sums(table: torch.Tensor, top: torch.Tensor, bottom: torch.Tensor, left: torch.Tensor, right: torch.Tensor):
+def box_sums(table: torch.Tensor, top: torch.Tensor, bottom: torch.Tensor, left: torch.Tensor, right: torch.Tensor):
     """Sums of every channel over the inclusive boxes [top, bottom] × [left, right], one per row: (M, C)."""
     width = table.shape[1]
     flat = table.view(-1, table.shape[2])
@@ -248,8 +184,8 @@ class _WallTable:
         hi_c = torch.maximum((right - 1).clamp(0, max(last_col, 0)), lo_c)
         lo_r = top.clamp(0, max(last_row, 0))
         hi_r = torch.maximum((bottom - 1).clamp(0, max(last_row, 0)), lo_r)
-        inner_cols = _box_sums(self.cols, top, bottom, lo_c, hi_c)[:, 0] * wide
-        inner_rows = _box_sums(self.rows, lo_r, hi_r, left, right)[:, 0] * tall
+        inner_cols = box_sums(self.cols, top, bottom, lo_c, hi_c)[:, 0] * wide
+        inner_rows = box_sums(self.rows, lo_r, hi_r, left, right)[:, 0] * tall
         return (inner_cols + inner_rows) > 0.5
 
 
@@ -330,7 +266,7 @@ def _one_sided_where_shrunk(box, half_row, half_col, walls: _WallTable, counts, 
         args = (row[todo], col[todo], half_row.reshape(-1)[todo], half_col.reshape(-1)[todo])
         tried = [_largest_clear(*args, side, walls, height, width) for side in sides]
         candidates = [tuple(b[todo] for b in best)] + [box for box, _ in tried]
-        filled = torch.stack([_box_sums(counts, *c)[:, 0] for c in candidates])
+        filled = torch.stack([box_sums(counts, *c)[:, 0] for c in candidates])
         choice = filled.argmax(dim=0)
         for i, side in enumerate(zip(*candidates, strict=True)):
             best[i][todo] = torch.stack(side).gather(0, choice.unsqueeze(0)).squeeze(0)
@@ -356,77 +292,3 @@ def _window_pca(
     eigvals, normal = smallest_eigenvector(cov)
     valid = (count >= MIN_NEIGHBOURS) & torch.isfinite(normal).all(dim=-1) & lines & spans_plane(eigvals)
     return WindowPCA(normal, eigvals, count, valid, reach, mean + offset, cov, box)
-
-
-
-def ray_noise_normal(fit: WindowPCA) -> torch.Tensor:
-    """The plane normal that explains each window when its noise runs along the sensor's rays: adj(C) · ray.
-
-    A depth camera measures depth and a LiDAR range, so a point's error moves it along its own ray: the window's
-    covariance is the surface's (rank 2, null along the normal n) plus s² · ray rayᵀ. The smallest-eigenvector PCA
-    answer tilts toward the ray once s rivals the window's extent (a Kinect's 3 cm at 4 m in a 5 cm ball), but
-    C⁻¹ · ray is parallel to n whatever s is (Sherman-Morrison), and the adjugate gives that direction without a
-    division, also for a noise-free window (where C is singular and adj(C) · ray = λ1 λ2 (n · ray) n). The ray is the
-    window centroid's direction from the origin: organized clouds come in their sensor's frame.
-    """
-    a00, a01, a02, a11, a12, a22 = fit.cov.unbind(dim=-1)
-    rows = (
-        torch.stack((a11 * a22 - a12 * a12, a02 * a12 - a01 * a22, a01 * a12 - a02 * a11), dim=-1),
-        torch.stack((a02 * a12 - a01 * a22, a00 * a22 - a02 * a02, a01 * a02 - a00 * a12), dim=-1),
-        torch.stack((a01 * a12 - a02 * a11, a01 * a02 - a00 * a12, a00 * a11 - a01 * a01), dim=-1),
-    )
-    ray = torch.nn.functional.normalize(fit.mean, dim=-1)
-    normal = torch.stack([(row * ray).sum(dim=-1) for row in rows], dim=-1)
-    length = normal.norm(dim=-1, keepdim=True)
-    # adj(C) vanishes for collinear or coincident points, and its product for a window seen edge-on (n ⊥ ray): there
-    # the noise model says nothing and PCA's axis stands.
-    usable = length > 1e-12 * fit.eigvals[:, 2:].square()
-    return torch.where(usable, normal / length.clamp_min(1e-300), fit.normal)
-
-
-def smallest_eigenvector(cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Ascending eigenvalues (N, 3) and the unit eigenvector of the smallest (N, 3) of symmetric 3×3 matrices given as
-    their upper triangles (N, 6) = (a00, a01, a02, a11, a12, a22), in closed form.
-
-    The eigenvalues are the trigonometric roots of the characteristic cubic (Smith 1961), the eigenvector the largest
-    cross product of two rows of A - λ0 I (the rows span the plane it is normal to). Matrices are scaled by their
-    trace first, so the formulas see numbers near 1 at any range or radius.
-    """
-    scale = (cov[:, 0].abs() + cov[:, 3].abs() + cov[:, 5].abs()).clamp_min(torch.finfo(cov.dtype).tiny)
-    a00, a01, a02, a11, a12, a22 = (cov / scale.unsqueeze(-1)).unbind(dim=-1)
-    q = (a00 + a11 + a22) / 3
-    off = a01 * a01 + a02 * a02 + a12 * a12
-    b00, b11, b22 = a00 - q, a11 - q, a22 - q
-    p = torch.sqrt(((b00 * b00 + b11 * b11 + b22 * b22 + 2 * off) / 6).clamp_min(0))
-    safe_p = p.clamp_min(1e-30)
-    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)) / safe_p.pow(
-        3
-    )
-    phi = torch.acos((det / 2).clamp(-1.0, 1.0)) / 3
-    largest = q + 2 * p * torch.cos(phi)
-    smallest = q + 2 * p * torch.cos(phi + 2 * math.pi / 3)
-    middle = 3 * q - largest - smallest
-    eigvals = torch.stack((smallest, middle, largest), dim=-1).clamp_min(0) * scale.unsqueeze(-1)
-    rows = torch.stack(
-        (
-            torch.stack((a00 - smallest, a01, a02), dim=-1),
-            torch.stack((a01, a11 - smallest, a12), dim=-1),
-            torch.stack((a02, a12, a22 - smallest), dim=-1),
-        ),
-        dim=1,
-    )
-    crosses = torch.stack(
-        (
-            torch.linalg.cross(rows[:, 0], rows[:, 1], dim=-1),
-            torch.linalg.cross(rows[:, 0], rows[:, 2], dim=-1),
-            torch.linalg.cross(rows[:, 1], rows[:, 2], dim=-1),
-        ),
-        dim=1,
-    )
-    norms = crosses.norm(dim=-1)
-    pick = norms.argmax(dim=1)
-    vector = crosses[torch.arange(len(pick), device=cov.device), pick]
-    length = norms.gather(1, pick.unsqueeze(1))
-    # No two rows of A - λ0 I span a plane when λ0 is repeated (a line, a point, an isotropic blob): no normal.
-    determined = length > DEGENERATE_CROSS
-    return eigvals, torch.where(determined, vector / length.clamp_min(torch.finfo(cov.dtype).tiny), torch.nan)

@@ -7,9 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core import integral
+from triplet_normal_ros.core import eigen, hybrid, windows
 from triplet_normal_ros.core.conventions import DEPTH_RADIUS, LIDAR_RADIUS, PCA_DEFAULT_K
-from triplet_normal_ros.core.estimator import NormalEstimator, search_choice
+from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.organized import range_pitch
+from triplet_normal_ros.core.plan import make_plan
+from triplet_normal_ros.core.settings import Settings
 
 HEIGHT, WIDTH, FOCAL = 60, 80, 70.0
 
@@ -51,7 +54,7 @@ def test_closed_form_eigenvectors_match_lapack() -> None:
     spd[:500, :, 2] *= 1e-3  # nearly flat neighbourhoods, the common case
     spd[:500, 2, :] *= 1e-3
     upper = torch.from_numpy(spd[:, [0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]])
-    eigvals, vector = integral.smallest_eigenvector(upper)
+    eigvals, vector = eigen.smallest_eigenvector(upper)
     reference, vectors = np.linalg.eigh(spd)
     np.testing.assert_allclose(eigvals.numpy(), reference, rtol=1e-9, atol=1e-12 * reference[:, 2:].max())
     alignment = np.abs(np.einsum("ij,ij->i", vector.numpy(), vectors[:, :, 0]))
@@ -61,10 +64,10 @@ def test_closed_form_eigenvectors_match_lapack() -> None:
 def test_box_sums_equal_brute_force() -> None:
     rng = np.random.default_rng(1)
     channels = torch.from_numpy(rng.normal(size=(9, 11, 3)))
-    table = integral._summed_area(channels)
+    table = windows._summed_area(channels)
     top, bottom = np.sort(rng.integers(0, 9, (2, 50)), axis=0)
     left, right = np.sort(rng.integers(0, 11, (2, 50)), axis=0)
-    got = integral._box_sums(table, *(torch.from_numpy(b) for b in (top, bottom, left, right)))
+    got = windows.box_sums(table, *(torch.from_numpy(b) for b in (top, bottom, left, right)))
     for i in range(50):
         expected = channels[top[i] : bottom[i] + 1, left[i] : right[i] + 1].sum(dim=(0, 1))
         np.testing.assert_allclose(got[i].numpy(), expected.numpy(), atol=1e-12)
@@ -109,7 +112,7 @@ def test_holes_are_nan_and_leave_their_neighbours_exact() -> None:
 
 
 def test_auto_takes_the_window_only_for_whole_ball_pca_on_organized_clouds() -> None:
-    """On the CPU (the pool search named here is the CPU's; a GPU's is `search_choice`'s, tested below)."""
+    """On the CPU (the pool search named here is the CPU's; a GPU's is `make_plan`'s, tested below)."""
     points = pinhole(plane_depth(np.array([0.0, 0.0, -1.0]), -1.0))
     cases = [
         (NormalEstimator("pca", radius=0.05, device="cpu"), (HEIGHT, WIDTH), "window"),
@@ -140,15 +143,18 @@ def test_the_search_a_gpu_would_take_runs_on_cpu_tensors() -> None:
     """'auto' on CUDA walks an organized cloud's pixel grid and an unorganized one's cell lists, and hybrid surveys an
     organized cloud by window and takes its gated pools from the grid; the same searches on CPU tensors must give the
     exact normals of a ridge far from its crease, so what a GPU runs is tested on any machine."""
-    assert search_choice("auto", "cuda", organized=True) == "grid"
-    assert search_choice("auto", "cuda", organized=False) == "voxel"
-    assert search_choice("auto", "cpu", organized=True) == "kdtree"
-    assert search_choice("window", "cpu", organized=True) == "grid"  # hybrid's gated pools under 'window'
+    def pools(neighbours: str, device: str, organized: bool) -> str:
+        return make_plan(Settings(method="learned", neighbours=neighbours), device, organized, organized).search
+
+    assert pools("auto", "cuda", organized=True) == "grid"
+    assert pools("auto", "cuda", organized=False) == "voxel"
+    assert pools("auto", "cpu", organized=True) == "kdtree"
+    assert pools("window", "cpu", organized=True) == "grid"  # hybrid's gated pools under 'window'
     depth, exact = fold_depth()
     points = pinhole(depth)
     away = (np.abs(np.mgrid[0:HEIGHT, 0:WIDTH][1] - WIDTH / 2) > 12).reshape(-1)
     for organized in (True, False):
-        search = search_choice("auto", "cuda", organized)
+        search = pools("auto", "cuda", organized)
         estimator = NormalEstimator("learned", radius=0.25, neighbours=search, device="cpu", checkpoint="lite")
         shape = (HEIGHT, WIDTH) if organized else None
         query = np.flatnonzero(away)[::17]
@@ -186,7 +192,7 @@ def test_lidar_range_images_take_per_axis_windows() -> None:
     frame = lidar_scan(100)
     shape = frame.points.shape[:2]
     points, exact = frame.points.reshape(-1, 3), frame.normals.reshape(-1, 3)
-    image = integral.MomentImage(torch.from_numpy(points.astype(np.float64)), shape)
+    image = _image(torch.from_numpy(points.astype(np.float64)), shape)
     assert image.pitch_row.median() > 5 * image.pitch_col.median()
     valid = np.isfinite(points).all(axis=1)
     window, _ = NormalEstimator("pca", radius=LIDAR_RADIUS).estimate(points, shape=shape)
@@ -204,17 +210,17 @@ def noisy_wall(sigma: float, seed: int = 4) -> tuple[np.ndarray, np.ndarray]:
 
 def test_the_ray_noise_plane_is_exact_without_noise_and_holds_where_pca_tips_over() -> None:
     points, normal = noisy_wall(0.0)
-    image = integral.MomentImage(torch.from_numpy(points), (HEIGHT, WIDTH))
+    image = _image(torch.from_numpy(points), (HEIGHT, WIDTH))
     fit = image.pca(0.2)
     exact = np.tile(normal, (len(points), 1))
-    assert angle_error(integral.ray_noise_normal(fit).numpy(), exact).max() < 1e-4
+    assert angle_error(hybrid.ray_noise_normal(fit).numpy(), exact).max() < 1e-4
     points, normal = noisy_wall(0.1)  # range noise rivals the window's extent: PCA's smallest axis is a guess
-    image = integral.MomentImage(torch.from_numpy(points), (HEIGHT, WIDTH))
+    image = _image(torch.from_numpy(points), (HEIGHT, WIDTH))
     fit = image.pca(0.15)
     valid = fit.valid.numpy()
     assert valid.mean() > 0.95
     pca_error = np.median(angle_error(fit.normal.numpy()[valid], exact[valid]))
-    ray_error = np.median(angle_error(integral.ray_noise_normal(fit).numpy()[valid], exact[valid]))
+    ray_error = np.median(angle_error(hybrid.ray_noise_normal(fit).numpy()[valid], exact[valid]))
     assert pca_error > 30 and ray_error < pca_error / 2.5
 
 
@@ -230,13 +236,13 @@ def fold_depth() -> tuple[np.ndarray, np.ndarray]:
 
 def test_the_window_cue_is_quiet_on_a_noisy_plane_and_fires_at_a_fold() -> None:
     points, _ = noisy_wall(0.01)
-    image = integral.MomentImage(torch.from_numpy(points), (HEIGHT, WIDTH))
-    cue = image.structure(image.pca(0.2))
+    image = _image(torch.from_numpy(points), (HEIGHT, WIDTH))
+    cue = hybrid.structure(image, image.pca(0.2))
     assert np.quantile(cue.z.numpy(), 0.99) < 5.0
     depth, _ = fold_depth()
     points = pinhole(depth)
-    image = integral.MomentImage(torch.from_numpy(points), (HEIGHT, WIDTH))
-    cue = image.structure(image.pca(0.1))
+    image = _image(torch.from_numpy(points), (HEIGHT, WIDTH))
+    cue = hybrid.structure(image, image.pca(0.1))
     ridge = cue.bend.numpy().reshape(HEIGHT, WIDTH)[10:-10, WIDTH // 2 - 2 : WIDTH // 2 + 2]
     far = cue.bend.numpy().reshape(HEIGHT, WIDTH)[10:-10, :10]
     assert ridge.min() > 0.05 and far.max() < 1e-6
@@ -255,3 +261,7 @@ def test_hybrid_on_an_organized_cloud_surveys_by_window_and_sends_only_the_fold_
     unorganized = NormalEstimator("hybrid", radius=0.25, checkpoint="lite", device="cpu")
     unorganized.estimate(points, np.arange(0, len(points), 97))
     assert unorganized.last_run.search == "kdtree"
+
+
+def _image(points: torch.Tensor, shape: tuple[int, int]) -> windows.MomentImage:
+    return windows.MomentImage(points, shape, range_pitch(points, shape))

@@ -1,0 +1,194 @@
+"""Hybrid: PCA everywhere, the network only where the neighbourhood is not a plane.
+
+Over pools (`hybrid_kernel`), the gate is a quadric against the pool's PCA plane (`frames.quadric_gain`). On an
+organized range image (`window_hybrid`), the survey is the integral-image window (`windows.py`) with a plane normal
+that models noise along the rays (`ray_noise_normal`), and the gate reads where the window's parts sit off that plane
+(`structure`), so only the gated points pay for a pool and a patch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from .conventions import MIN_NEIGHBOURS
+from .frames import quadric_gain, spans_plane, surface_variation
+from .kernels import CHUNK, Call, finish, learned_kernel, network, over_pools, pool_pca
+from .patches import build_patches, to_world
+from .search import PoolSearch, ScanLines
+from .windows import MomentImage, WindowPCA, box_sums
+
+#: Hybrid's window survey reads a window's parts only when it spans at least this many pixels on both axes (3: a
+#: LiDAR's 3-beam windows keep the survey, which measured 0.86 × pool PCA's MSAE on eval's scans; 5 sent them to pools
+#: and measured 1.01 ×).
+PART_SPAN = 3
+
+
+@torch.inference_mode()
+def hybrid_kernel(call: Call, cloud, centres, pool, rows, radius) -> tuple[np.ndarray, np.ndarray]:
+    """PCA of the whole pool everywhere (the learned method's own frame); the network where a quadric explains the
+    neighbourhood significantly (F > gate) and substantially (its RMS height > bend radii) better than that plane."""
+    s = call.settings
+    with call.timed("pca"):
+        local, mask, valid, eigvals, frame = pool_pca(cloud, centres, pool)
+        valid &= spans_plane(eigvals)
+        curvature = surface_variation(eigvals)
+        normal = frame[:, 2].clone()
+    with call.timed("gate"):
+        gain = quadric_gain(local / radius, mask, frame)
+        structured = (gain.f > s.gate) & (gain.bend > s.bend)
+        gated = torch.nonzero(valid & structured).squeeze(1)
+    if len(gated):
+        with call.timed("patches"):
+            patches = build_patches(
+                cloud,
+                centres[gated],
+                pool[gated],
+                radius,
+                call.k,
+                centre_ids=rows[gated],
+                point_ids=call.ids,
+                seed=s.seed,
+                pca=(eigvals[gated], frame[gated]),
+                **call.fit_options(),
+            )
+        local_normals = network(call, patches)
+        normal[gated] = to_world(local_normals, patches.rotation).to(normal.dtype)
+        call.run.network += len(gated)
+    return finish(normal, curvature, valid)
+
+
+def window_hybrid(
+    call: Call,
+    image: MomentImage,
+    cloud: torch.Tensor,
+    query: np.ndarray,
+    open_pools: Callable[[], PoolSearch],
+    lines: ScanLines,
+    progress: Callable[[int], None] | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Hybrid on an organized range image: the window survey everywhere (its ray-noise plane normal and PCL
+    curvature), then pools (`open_pools()`, opened only when some point needs one) and the network only where the
+    window's parts sit off its plane (`structure`).
+
+    A window less than PART_SPAN pixels across on either axis (a spinning LiDAR's beams at range, a sliver beside
+    an edge) cannot be cut into parts, so the cue is blind there; nor is a window that walls cut below three
+    points a fit. Those points take the pool path's own hybrid (pool PCA, the quadric gate, the network where it
+    opens), as they would without a grid, and the pool's curvature; where the pool determines no plane (one
+    LiDAR ring in the ball) a thin window that does keeps its own answer."""
+    s = call.settings
+    with call.timed("survey"):
+        fit = image.pca(s.radius, s.range_scale)
+        survey = ray_noise_normal(fit)
+        cue = structure(image, fit, survey)
+        finite = image.finite.reshape(-1)
+        valid = fit.valid & finite
+        top, bottom, left, right = fit.box
+        narrow = (bottom - top < PART_SPAN - 1) | (right - left < PART_SPAN - 1)
+        thin = finite & (narrow | ~fit.valid)  # a window that walls cut below 3 points may still hold a ball
+        structured = (cue.z > (3 * s.gate) ** 0.5) & (cue.bend > s.bend)
+        gated = valid & ~thin & structured
+        normals, curvature = finish(survey, surface_variation(fit.eigvals), valid)
+        normals, curvature = normals[query], curvature[query]
+        network_rows = np.flatnonzero(gated.cpu().numpy()[query])
+        pooled = np.flatnonzero(thin.cpu().numpy()[query])
+    call.run.estimated = int(finite.cpu().numpy()[query].sum())
+    if progress is not None:
+        progress(len(query) - len(network_rows) - len(pooled))
+    if len(network_rows) + len(pooled) == 0:
+        return normals, curvature
+    with call.timed("neighbours"):
+        search = open_pools()
+    for todo, kernel in ((network_rows, learned_kernel), (pooled, hybrid_kernel)):
+        for out, answer, pool_curvature in over_pools(call, search, cloud, query, todo, kernel, CHUNK, lines):
+            answered = np.isfinite(answer).all(axis=1)
+            normals[out[answered]] = answer[answered]
+            if todo is pooled:  # a thin window's curvature is a sliver's; the pool's is the ball's
+                curvature[out[answered]] = pool_curvature[answered]
+            if progress is not None:
+                progress(len(out))
+    return normals, curvature
+
+
+class Structure(NamedTuple):
+    """How far each window departs from its own PCA plane, measured by the centroids of its parts (`structure`)."""
+
+    #: Largest |height| of a part's centroid above the window's plane over the part's noise standard error: is the
+    #: departure significant? About 1-3 on any plane, whatever its noise; large across a fold or an edge.
+    z: torch.Tensor
+    #: That largest height in units of the window's reach (the radius): is the departure large?
+    bend: torch.Tensor
+
+
+def structure(image: MomentImage, fit: WindowPCA, normal: torch.Tensor | None = None) -> Structure:
+    """The O(1) cue of hybrid's gate: where a quadric would beat the plane, parts of the window sit off it.
+
+    Each window is cut into five parts (its upper, lower, left and right halves, and its central quarter). On a
+    plane every part's centroid lies on the window's PCA plane up to noise; across a fold or an edge the halves
+    on either side and the centre sit above or below it by a fraction of the radius. The heights come from the
+    first-moment sums of the parts, so the cue costs five box lookups per pixel, not a neighbourhood. Heights run
+    along `normal` (default: PCA's), the noise is the window's variance along it; pass the survey's normal, or a
+    noise-dominated window measures its heights along whichever in-plane axis PCA mistook for the normal."""
+    top, bottom, left, right = fit.box
+    mid_row, mid_col = (
+        torch.div(top + bottom, 2, rounding_mode="floor"),
+        torch.div(left + right, 2, rounding_mode="floor"),
+    )
+    quarter_row = torch.div(bottom - top + 2, 4, rounding_mode="floor")
+    quarter_col = torch.div(right - left + 2, 4, rounding_mode="floor")
+    parts = (
+        (top, mid_row, left, right),
+        (mid_row + 1, bottom, left, right),
+        (top, bottom, left, mid_col),
+        (top, bottom, mid_col + 1, right),
+        (mid_row - quarter_row + 1, mid_row + quarter_row, mid_col - quarter_col + 1, mid_col + quarter_col),
+    )
+    first = image.first
+    normal = fit.normal if normal is None else normal
+    a00, a01, a02, a11, a12, a22 = fit.cov.unbind(dim=-1)
+    nx, ny, nz = normal.unbind(dim=-1)
+    noise = (
+        a00 * nx * nx + a11 * ny * ny + a22 * nz * nz + 2 * (a01 * nx * ny + a02 * nx * nz + a12 * ny * nz)
+    ).clamp_min(0)
+    z = torch.zeros_like(fit.count)
+    bend = torch.zeros_like(fit.count)
+    centroid = fit.mean - image.offset
+    for part in parts:
+        lows, highs = (top, top, left, left), (bottom, bottom, right, right)
+        part = tuple(b.clamp(lo, hi) for b, lo, hi in zip(part, lows, highs, strict=True))
+        sums = box_sums(first, *part)
+        n = sums[:, 0]
+        height = ((sums[:, 1:] / n.clamp_min(1).unsqueeze(-1) - centroid) * normal).sum(dim=-1).abs()
+        spread = torch.sqrt(noise * (1 / n.clamp_min(1) - 1 / fit.count.clamp_min(1)).clamp_min(0))
+        ok = (n >= MIN_NEIGHBOURS) & (n < fit.count)
+        z = torch.where(ok, torch.maximum(z, height / spread.clamp_min(1e-12)), z)
+        bend = torch.where(ok, torch.maximum(bend, height / fit.reach), bend)
+    return Structure(z, bend)
+
+
+def ray_noise_normal(fit: WindowPCA) -> torch.Tensor:
+    """The plane normal that explains each window when its noise runs along the sensor's rays: adj(C) · ray.
+
+    A depth camera measures depth and a LiDAR range, so a point's error moves it along its own ray: the window's
+    covariance is the surface's (rank 2, null along the normal n) plus s² · ray rayᵀ. The smallest-eigenvector PCA
+    answer tilts toward the ray once s rivals the window's extent (a Kinect's 3 cm at 4 m in a 5 cm ball), but
+    C⁻¹ · ray is parallel to n whatever s is (Sherman-Morrison), and the adjugate gives that direction without a
+    division, also for a noise-free window (where C is singular and adj(C) · ray = λ1 λ2 (n · ray) n). The ray is the
+    window centroid's direction from the origin: organized clouds come in their sensor's frame.
+    """
+    a00, a01, a02, a11, a12, a22 = fit.cov.unbind(dim=-1)
+    rows = (
+        torch.stack((a11 * a22 - a12 * a12, a02 * a12 - a01 * a22, a01 * a12 - a02 * a11), dim=-1),
+        torch.stack((a02 * a12 - a01 * a22, a00 * a22 - a02 * a02, a01 * a02 - a00 * a12), dim=-1),
+        torch.stack((a01 * a12 - a02 * a11, a01 * a02 - a00 * a12, a00 * a11 - a01 * a01), dim=-1),
+    )
+    ray = torch.nn.functional.normalize(fit.mean, dim=-1)
+    normal = torch.stack([(row * ray).sum(dim=-1) for row in rows], dim=-1)
+    length = normal.norm(dim=-1, keepdim=True)
+    # adj(C) vanishes for collinear or coincident points, and its product for a window seen edge-on (n ⊥ ray): there
+    # the noise model says nothing and PCA's axis stands.
+    usable = length > 1e-12 * fit.eigvals[:, 2:].square()
+    return torch.where(usable, normal / length.clamp_min(1e-300), fit.normal)

@@ -1,0 +1,145 @@
+"""Which path an estimate takes, decided once: the pool search, the survey, the kernel and the checkpoint.
+
+Every choice the estimator makes about a cloud is made here, by `make_plan`, from its settings and three facts about
+the cloud: the device type, whether it is organized (an image with more than one row) and whether that image is a range
+image in its sensor's frame (`organized.range_pitch`). The estimator executes the returned `Plan`; the node's start-up
+line prints it, `bench` labels its rows with it, and docs/NODE.md's path table is `plan_table()`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from .conventions import METHODS, PCA_DEFAULT_K
+from .defaults import shipped_checkpoint
+from .organized import RangePitch, range_pitch
+from .search import is_organized
+from .settings import Settings
+
+#: How each part of a plan reads in a sentence.
+_SEARCH_WORDS = {
+    "kdtree": "KD-tree pools",
+    "grid": "pixel-grid pools",
+    "voxel": "cell-list pools",
+    "none": "no pools",
+}
+_SURVEY_WORDS = {"window": "integral-image windows", "pool": "pool PCA", "none": "no survey"}
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What one estimate runs.
+
+    - `kernel`: 'pca', 'learned' or 'hybrid' (the method).
+    - `survey`: how every point gets its first answer: 'window' (integral images of an organized range image, O(1)
+      per pixel), 'pool' (PCA of each point's pool) or 'none' (learned: the network everywhere).
+    - `search`: the pool search for the points that need pools: 'kdtree', 'grid', 'voxel', or 'none' (window pca
+      needs no pool).
+    - `checkpoint`: the network's checkpoint (a shipped name or a path), '' for pca.
+    """
+
+    kernel: str
+    survey: str
+    search: str
+    checkpoint: str
+
+    @property
+    def path(self) -> str:
+        """One word for the path: 'window' when the survey is, else the pool search."""
+        return "window" if self.survey == "window" else self.search
+
+    @property
+    def uses_range_image(self) -> bool:
+        return self.survey == "window" or self.search == "grid"
+
+    @property
+    def steps(self) -> str:
+        """The path in words, e.g. 'integral-image windows, KD-tree pools, checkpoint lite'."""
+        parts = [_SURVEY_WORDS[self.survey]] if self.survey != "none" else []
+        if self.search != "none":
+            parts.append(_SEARCH_WORDS[self.search])
+        if self.checkpoint:
+            parts.append(f"checkpoint {self.checkpoint}")
+        return ", ".join(parts)
+
+    def describe(self) -> str:
+        """The method and its path, for logs: 'hybrid: integral-image windows, KD-tree pools, checkpoint lite'."""
+        return f"{self.kernel}: {self.steps}"
+
+
+def make_plan(settings: Settings, device_type: str, organized: bool, range_image: bool) -> Plan:
+    """The plan for a cloud: `organized` when it comes as an image of more than one row, `range_image` when that image
+    is a range image in its sensor's frame (pixel neighbours are then 3D neighbours).
+
+    The window survey runs for pca and hybrid on a range image when `neighbours` is 'window', or 'auto' and the
+    method wants the whole ball (hybrid always; pca when k is PCA_DEFAULT_K or more: a smaller k means the nearest k,
+    which a window cannot give). Pools come from the grid where asked ('grid', 'window') or on a GPU under 'auto', and
+    only on a range image; from cell lists when asked or on a GPU under 'auto' otherwise; else from the KD-tree, the
+    fastest on a CPU (docs/RESULTS.md).
+    """
+    kernel = settings.method
+    grid = organized and range_image
+    whole_ball = kernel == "hybrid" or (settings.k or PCA_DEFAULT_K) >= PCA_DEFAULT_K
+    wants_window = settings.neighbours == "window" or (settings.neighbours == "auto" and whole_ball)
+    window = kernel != "learned" and grid and wants_window
+    survey = "window" if window else ("none" if kernel == "learned" else "pool")
+    search = "none" if window and kernel == "pca" else _pool_search(settings.neighbours, device_type, organized, grid)
+    return Plan(kernel, survey, search, checkpoint_for(settings, device_type))
+
+
+def _pool_search(neighbours: str, device_type: str, organized: bool, grid: bool) -> str:
+    on_gpu = neighbours == "auto" and device_type == "cuda"
+    if (neighbours in ("grid", "window") or on_gpu) and organized:
+        if grid:
+            return "grid"
+        return "voxel" if on_gpu else "kdtree"
+    return "voxel" if neighbours == "voxel" or on_gpu else "kdtree"
+
+
+def checkpoint_for(settings: Settings, device_type: str) -> str:
+    """The checkpoint the network methods load: the setting, or for an empty one the shipped one for the device."""
+    if settings.method == "pca":
+        return ""
+    return str(settings.checkpoint) if settings.checkpoint else shipped_checkpoint(device_type)
+
+
+def plan_cloud(
+    settings: Settings, device: torch.device, cloud: torch.Tensor, shape: tuple[int, int] | None
+) -> tuple[Plan, RangePitch | None]:
+    """The plan for `cloud` (N, 3) on `device`, and the range image's pitch when the plan reads the grid. The pitch
+    (a few passes over the image) is measured only when the plan would use it."""
+    organized = is_organized(shape, len(cloud))
+    hopeful = make_plan(settings, device.type, organized, range_image=organized)
+    if not hopeful.uses_range_image:
+        return hopeful, None
+    pitch = range_pitch(cloud, shape)
+    if pitch is None:
+        return make_plan(settings, device.type, organized, range_image=False), None
+    return hopeful, pitch
+
+
+#: The clouds `plan_table` covers: (label, organized, range image).
+CLOUDS = (
+    ("organized range image (a camera's or a LiDAR driver's frame)", True, True),
+    ("organized, not a range image (transformed, or not in sensor order)", True, False),
+    ("unorganized", False, False),
+)
+
+
+def plan_table(settings: Settings | None = None) -> str:
+    """A markdown table of the plan for each method, cloud and device under `settings` (default: the defaults, with
+    each method in turn): docs/NODE.md's "Which path runs" block is this table."""
+    base = settings or Settings(method="pca")
+    lines = ["| method | cloud | CPU | GPU |", "| --- | --- | --- | --- |"]
+    for method in METHODS:
+        chosen = base.with_values(method=method)
+        for label, organized, range_image in CLOUDS:
+            cells = [make_plan(chosen, device, organized, range_image).steps for device in ("cpu", "cuda")]
+            lines.append(f"| `{method}` | {label} | {cells[0]} | {cells[1]} |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":  # docs/NODE.md's "Which path runs" table
+    print(plan_table(), end="")
