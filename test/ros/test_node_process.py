@@ -310,8 +310,9 @@ def test_sigint_during_an_estimate_cancels_it_and_exits_cleanly(start_node, fram
         assert c.answers_received == 0, "the cloud was answered before SIGINT: nothing was in flight"
         code, seconds = node.stop(signal.SIGINT, timeout=EXIT_GUARD_S)
         assert c.answers_received == 0
-    print(f"exited {seconds:.2f} s after SIGINT")
     assert code == 0, node.log[-3000:]
+    # README: "SIGINT or SIGTERM cancels the estimate in flight and exits within 2 s" (signal to exit, waited on).
+    assert seconds < 2.0, f"exited {seconds:.2f} s after SIGINT"
     assert "Traceback" not in node.log
     assert "shut down" in node.log and "still busy" not in node.log, "the estimate was not cancelled"
     assert _totals(node)[1] == 0, "the cloud was processed"
@@ -341,8 +342,9 @@ def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, insta
         assert out is not None
         assert np.isfinite(normals_of(out)).all(axis=1).sum() > 300
     assert node.log.count("first cloud received:") == 1  # announced once, however often it was resent
-    code, _ = node.stop(signal.SIGTERM, timeout=EXIT_GUARD_S)
+    code, seconds = node.stop(signal.SIGTERM, timeout=EXIT_GUARD_S)
     assert code == 0, node.log[-2000:]
+    assert seconds < 2.0, f"exited {seconds:.2f} s after SIGTERM"  # README: "... exits within 2 s"
     assert "shut down" in node.log and "still busy" not in node.log
     assert "Traceback" not in node.log
 
