@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import itertools
+import sys
 import threading
 import time
 
 from hypothesis import given
 from hypothesis import strategies as st
 
+from triplet_normal_ros.ros import mailbox
 from triplet_normal_ros.ros.mailbox import Mailbox
 
 
@@ -37,12 +39,39 @@ def test_memory_stays_one_item_however_fast_the_producer() -> None:
     assert box.get(timeout=0) is None
 
 
-def test_get_waits_for_a_put_from_another_thread() -> None:
+def _parked_in_get(thread: threading.Thread) -> bool:
+    """Whether `thread` is waiting on the mailbox's condition inside ``Mailbox.get`` right now (read off its stack)."""
+    frame = sys._current_frames().get(thread.ident)
+    waiting = False
+    while frame is not None:
+        code = frame.f_code
+        waiting |= code.co_name == "wait" and code.co_filename == threading.__file__
+        if code.co_name == "get" and code.co_filename == mailbox.__file__:
+            return waiting
+        frame = frame.f_back
+    return False
+
+
+def _blocked_getter(box: Mailbox[int]) -> tuple[threading.Thread, list[int | None]]:
+    """A thread calling ``box.get()`` once it is parked in it, and the list that receives what get returns."""
+    got: list[int | None] = []
+    getter = threading.Thread(target=lambda: got.append(box.get()), daemon=True)
+    getter.start()
+    deadline = time.monotonic() + 5
+    while not _parked_in_get(getter) and getter.is_alive() and time.monotonic() < deadline:
+        time.sleep(0.001)  # polling the getter's stack for the state, not waiting for a result
+    assert _parked_in_get(getter), f"get on an empty mailbox did not wait (it returned {got})"
+    assert got == []
+    return getter, got
+
+
+def test_get_blocks_until_another_thread_puts_and_returns_that_item() -> None:
     box: Mailbox[int] = Mailbox()
-    threading.Timer(0.1, box.put, args=(7,)).start()
-    start = time.monotonic()
-    assert box.get(timeout=5) == 7
-    assert 0.05 < time.monotonic() - start < 4
+    getter, got = _blocked_getter(box)
+    box.put(7)
+    getter.join(5)
+    assert not getter.is_alive() and got == [7]
+    assert box.get(timeout=0) is None  # the item was taken, not copied
 
 
 def test_get_times_out_with_none() -> None:
@@ -54,11 +83,8 @@ def test_get_times_out_with_none() -> None:
 def test_close_wakes_a_blocked_get_and_refuses_new_items() -> None:
     box: Mailbox[int] = Mailbox()
     box.put(1)
-    got: list[int | None] = []
     box.get(timeout=0)  # empty it, so the thread below blocks
-    worker = threading.Thread(target=lambda: got.append(box.get()))
-    worker.start()
-    time.sleep(0.05)
+    worker, got = _blocked_getter(box)
     box.close()
     worker.join(2)
     assert not worker.is_alive() and got == [None]
