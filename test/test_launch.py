@@ -1,13 +1,13 @@
 """launch/triplet_normal.launch.py without ``launch`` (not installable here): it compiles, calls the real launch API,
 starts the console script setup.py installs as ``node`` (the module that defines the node's name) from setup.py's
-package, under the node's name; every argument it declares is a topic remap, the parameter file, the preset, or a node
-parameter (``ros.params.SPECS``) with the node's own default; its default parameter file is the preset's, under the
-config directory that resolves (through ament_index, as ``ros2 launch`` would) to where setup.py's data_files install
-config/*.yaml under share/; every preset is such a file, the default preset is config/params.yaml, and colcon installs
-them there.
+package, under the node's name; every argument it declares has a description and reaches the node (a topic remap,
+the parameter file, or the preset that picks it); with no arguments the node gets the preset ``params``, i.e.
+config/params.yaml, and its own topic names; every preset resolves (through ament_index, as ``ros2 launch`` would) to
+the file setup.py's data_files install under share/, and colcon installs them there.
 
-The checks read the syntax trees of the launch file and setup.py; the default path expression is evaluated for real,
-against a prefix laid out from setup.py's data_files and against a colcon install.
+Its ``generate_launch_description`` runs for real, against stand-ins for ``launch``'s classes that record what it
+builds; ``launched`` then works out what ``ros2 launch`` would start from that, for given command-line arguments
+(declared arguments in order, each its value or its default, a default that is a list joined; choices enforced).
 """
 
 from __future__ import annotations
@@ -15,15 +15,19 @@ from __future__ import annotations
 import ast
 import contextlib
 import importlib
+import importlib.util
 import os
 import py_compile
 import shutil
+import sys
+import types
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pytest
 import yaml
-from ament_index_python.packages import get_package_share_directory
 from conftest import PACKAGE, REPO
 
 from triplet_normal_ros.ros.node import NODE_NAME
@@ -92,11 +96,6 @@ def setup_keywords(*wanted: str) -> dict[str, Any]:
     return {name: eval(compile(ast.Expression(expr), str(SETUP), "eval"), scope) for name, expr in found.items()}
 
 
-def declared_arguments(module: ast.Module) -> dict[str, dict[str, Any]]:
-    """Each DeclareLaunchArgument's name and keywords."""
-    return {value(c.args[0], {}): keywords(c, constants(module)) for c in calls(module, "DeclareLaunchArgument")}
-
-
 def test_it_compiles(tmp_path: Path) -> None:
     py_compile.compile(str(LAUNCH), cfile=str(tmp_path / "launch.pyc"), doraise=True)
 
@@ -129,40 +128,139 @@ def test_its_package_and_executable_are_setup_pys_package_and_node_console_scrip
     assert callable(getattr(started, function)) and started.NODE_NAME == args["name"] == NODE_NAME
 
 
-def test_every_argument_is_a_topic_remap_the_parameter_file_or_a_node_parameter_with_its_default() -> None:
-    module = tree()
-    declared = declared_arguments(module)
-    assert len(declared) == len(calls(module, "DeclareLaunchArgument")), "an argument is declared twice"
-    assert all(d.get("description") for d in declared.values())
-    used = {value(c.args[0], {}) for c in calls(module, "LaunchConfiguration")}
-    assert used <= set(declared), "a LaunchConfiguration that names no declared argument is an empty string at launch"
-    assert set(declared) <= used, "a declared argument that nothing uses does nothing"
-    (node,) = calls(module, "Node")
-    args = keywords(node, constants(module))
-    # Topics: each remapped by the argument of its name, whose default is the topic itself (no remap).
-    assert args["remappings"] == [(topic, ("LaunchConfiguration", topic)) for topic in TOPICS]
-    assert all(declared[topic]["default_value"] == topic for topic in TOPICS)
-    # The parameter file comes first, so parameters given by argument (after it) override it.
-    first, *rest = args["parameters"]
-    assert first == ("LaunchConfiguration", PARAMS_FILE)
-    assert declared[PARAMS_FILE]["default_value"] == ("name", "default_params")
-    presets = constants(module)["PRESETS"]
-    assert declared[PRESET]["choices"] == presets and declared[PRESET]["default_value"] == "params"
-    assert all((REPO / "config" / f"{preset}.yaml").is_file() for preset in presets), presets
-    default_expression = _assignment(module, "default_params")
-    assert ast.unparse(default_expression) == "[config + os.sep, LaunchConfiguration('preset'), '.yaml']"
-    # Any other argument is a node parameter of the same name, passed as that parameter, with the node's default.
+class _Recorded:
+    """What a stand-in for one of launch's classes was built with."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.args, self.kwargs = args, kwargs
+
+
+class _DeclareLaunchArgument(_Recorded):
+    pass
+
+
+class _LaunchConfiguration(_Recorded):
+    pass
+
+
+class _Node(_Recorded):
+    pass
+
+
+class _LaunchDescription(_Recorded):
+    pass
+
+
+@dataclass(frozen=True)
+class Launched:
+    """What ``ros2 launch`` would start: the node's (package, executable, name), its parameters (parameter file paths
+    and {name: value} maps, in order) and its topic remaps."""
+
+    node: tuple[str, str, str]
+    parameters: tuple[Any, ...]
+    remappings: tuple[tuple[str, str], ...]
+
+
+def _description(monkeypatch: pytest.MonkeyPatch) -> _LaunchDescription:
+    """The launch file's own generate_launch_description(), run with the stand-ins in place of launch and launch_ros;
+    ament_index is the real one (AMENT_PREFIX_PATH decides where the package's share directory is)."""
+    modules = {
+        "launch": {"LaunchDescription": _LaunchDescription},
+        "launch.actions": {"DeclareLaunchArgument": _DeclareLaunchArgument},
+        "launch.substitutions": {"LaunchConfiguration": _LaunchConfiguration},
+        "launch_ros": {},
+        "launch_ros.actions": {"Node": _Node},
+    }
+    for name, attributes in modules.items():
+        module = types.ModuleType(name)
+        module.__dict__.update(attributes)
+        monkeypatch.setitem(sys.modules, name, module)
+    spec = importlib.util.spec_from_file_location("triplet_normal_launch", LAUNCH)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    description = module.generate_launch_description()
+    assert isinstance(description, _LaunchDescription)
+    return description
+
+
+def _declared(description: _LaunchDescription) -> dict[str, _DeclareLaunchArgument]:
+    (entities,) = description.args
+    return {a.args[0]: a for a in entities if isinstance(a, _DeclareLaunchArgument)}
+
+
+def _resolve(item: Any, values: Mapping[str, str]) -> str:
+    """Text, a LaunchConfiguration, or a list of them joined: the string launch substitutes for it."""
+    if isinstance(item, str):
+        return item
+    if isinstance(item, _LaunchConfiguration):
+        (name,) = item.args
+        assert name in values, f"LaunchConfiguration({name!r}) names no argument declared before it"
+        return values[name]
+    assert isinstance(item, list), f"not a launch substitution: {item!r}"
+    return "".join(_resolve(part, values) for part in item)
+
+
+def launched(monkeypatch: pytest.MonkeyPatch, arguments: Mapping[str, str] | None = None) -> Launched:
+    """What ``ros2 launch <package> <launch file> name:=value ...`` would start, for `arguments`."""
+    arguments = dict(arguments or {})
+    (entities,) = _description(monkeypatch).args
+    values: dict[str, str] = {}
+    nodes = []
+    for action in entities:
+        if isinstance(action, _DeclareLaunchArgument):
+            (name,) = action.args
+            given = arguments.pop(name, None)
+            text = given if given is not None else _resolve(action.kwargs["default_value"], values)
+            choices = action.kwargs.get("choices")
+            assert choices is None or text in choices, f"{name}:={text} is not one of {choices}"
+            values[name] = text
+        elif isinstance(action, _Node):
+            nodes.append(action)
+    assert not arguments, f"arguments the launch file does not declare: {sorted(arguments)}"
+    (node,) = nodes
+    kwargs = node.kwargs
+    parameters = tuple(
+        {name: yaml.safe_load(_resolve(v, values)) for name, v in item.items()}
+        if isinstance(item, dict)
+        else _resolve(item, values)
+        for item in kwargs.get("parameters", [])
+    )
+    remappings = tuple((_resolve(a, values), _resolve(b, values)) for a, b in kwargs.get("remappings", []))
+    return Launched((kwargs["package"], kwargs["executable"], kwargs["name"]), parameters, remappings)
+
+
+def test_every_argument_has_a_description_and_reaches_the_node(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    prefix = tmp_path / "prefix"
+    _installed_data_files(prefix)
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(prefix))
+    config = prefix / "share" / PACKAGE / "config"
+    declared = _declared(_description(monkeypatch))
+    assert len(declared) == len(calls(tree(), "DeclareLaunchArgument")), "an argument is declared twice"
+    assert all(a.kwargs.get("description") for a in declared.values())
+    # No arguments: the node's own topic names, and the default preset's parameter file.
+    default = launched(monkeypatch)
+    assert default.node == (PACKAGE, "node", NODE_NAME)
+    assert default.remappings == tuple((topic, topic) for topic in TOPICS)
+    assert default.parameters == (str(config / "params.yaml"),)
+    # Each argument, given a value other than its default, changes what the node gets: none is declared for nothing.
+    for name, argument in declared.items():
+        choices = argument.kwargs.get("choices")
+        other = next(c for c in choices if c != _resolve(argument.kwargs["default_value"], {})) if choices else "/x"
+        changed = launched(monkeypatch, {name: other})
+        assert changed != default, f"launch argument {name}:={other} does not reach the node"
+    # ... and changes it as its name says: topics are remapped, the parameter file replaces the preset's.
+    topics = launched(monkeypatch, {"input": "/cam/points", "output": "/cam/normals"})
+    assert topics.remappings == (("input", "/cam/points"), ("output", "/cam/normals"))
+    assert launched(monkeypatch, {PARAMS_FILE: "/my/params.yaml", PRESET: "lidar"}).parameters == ("/my/params.yaml",)
+    # A node parameter passed by argument (a {name: value} map after the file, so it overrides it) is one of the
+    # node's, and left at its default it is the node's default.
     specs = {spec.name: spec for spec in SPECS}
-    assert all(isinstance(mapping, dict) for mapping in rest), f"after the parameter file only name: value maps: {rest}"
-    passed = {name: setting for mapping in rest for name, setting in mapping.items()}
-    for name in set(declared) - {*TOPICS, PARAMS_FILE, PRESET}:
-        assert name in specs, f"launch argument {name!r} is not a node parameter ({sorted(specs)})"
-        assert passed.get(name) == ("LaunchConfiguration", name), f"launch argument {name!r} is not passed to the node"
-        text = declared[name]["default_value"]
-        assert isinstance(text, str), f"{name}: default {text!r} is not a literal"
-        default = text if specs[name].kind is str else yaml.safe_load(text)  # how ros2 launch types the string
-        assert default == specs[name].default, f"{name}: launch default {text!r}, node default {specs[name].default!r}"
-    assert set(passed) <= set(declared) - {*TOPICS, PARAMS_FILE, PRESET}, "a parameter is set in the launch file itself"
+    for mapping in default.parameters[1:]:
+        assert isinstance(mapping, dict), f"after the parameter file only name: value maps: {default.parameters}"
+        for name, setting in mapping.items():
+            assert name in specs, f"launch parameter {name!r} is not a node parameter ({sorted(specs)})"
+            assert setting == specs[name].default, f"{name}: launch default {setting!r}, node's {specs[name].default!r}"
 
 
 def _installed_data_files(prefix: Path) -> None:
@@ -181,20 +279,17 @@ def test_its_presets_are_the_parameter_files_setup_py_installs_under_share(
     share = prefix / "share" / PACKAGE
     assert (share / "launch" / LAUNCH.name).read_bytes() == LAUNCH.read_bytes()  # where ros2 launch finds it
     monkeypatch.setenv("AMENT_PREFIX_PATH", str(prefix))  # the package index the data files include
-    module = tree()
-    scope = {"os": os, "get_package_share_directory": get_package_share_directory, **constants(module)}
-    config = Path(eval(compile(ast.Expression(_assignment(module, "config")), str(LAUNCH), "eval"), scope))
-    assert config == share / "config"
-    for preset in constants(module)["PRESETS"]:
-        assert (config / f"{preset}.yaml").read_bytes() == (REPO / "config" / f"{preset}.yaml").read_bytes()
+    _check_presets(monkeypatch, share)
 
 
-def _assignment(module: ast.Module, name: str) -> ast.expr:
-    """The expression assigned to `name` inside generate_launch_description."""
-    (function,) = [s for s in module.body if isinstance(s, ast.FunctionDef)]
-    assigns = [s for s in ast.walk(function) if isinstance(s, ast.Assign)]
-    (assign,) = [s for s in assigns if getattr(s.targets[0], "id", "") == name]
-    return assign.value
+def _check_presets(monkeypatch: pytest.MonkeyPatch, share: Path) -> None:
+    """Every preset the launch file offers gives the node that preset's file under `share`, the repository's copy."""
+    presets = _declared(_description(monkeypatch))[PRESET].kwargs["choices"]
+    assert set(presets) >= {"params", "depth_camera", "lidar"}, presets
+    for preset in presets:
+        (params_file,) = launched(monkeypatch, {PRESET: preset}).parameters
+        assert Path(params_file) == share / "config" / f"{preset}.yaml"
+        assert Path(params_file).read_bytes() == (REPO / "config" / f"{preset}.yaml").read_bytes()
 
 
 @pytest.mark.slow  # colcon build
@@ -209,10 +304,5 @@ def test_colcon_installs_it_and_its_presets_resolve_to_the_installed_files(
     executable = install_prefix / "lib" / PACKAGE / keywords(node, constants(module))["executable"]
     assert executable.is_file() and os.access(executable, os.X_OK)
 
-    expression = ast.Expression(_assignment(module, "config"))
     monkeypatch.setenv("AMENT_PREFIX_PATH", str(install_prefix))  # what sourcing install/setup.bash sets
-    scope = {"os": os, "get_package_share_directory": get_package_share_directory, **constants(module)}
-    config = Path(eval(compile(expression, str(LAUNCH), "eval"), scope))
-    assert config == install_prefix / "share" / PACKAGE / "config"
-    for preset in constants(module)["PRESETS"]:
-        assert (config / f"{preset}.yaml").read_bytes() == (REPO / "config" / f"{preset}.yaml").read_bytes()
+    _check_presets(monkeypatch, install_prefix / "share" / PACKAGE)
