@@ -60,7 +60,7 @@ def test_estimate_pca_subprocess_default_out_indices_and_viewpoint(tmp_path: Pat
     assert done.returncode == 0, done.stderr
     assert "400 points, 400 estimated, 400 valid" in done.stdout
     normals = read_normals_file(tmp_path / "ball.normals")  # default OUT: IN with suffix .normals
-    assert rmse_deg(normals, gt) < 10.0
+    assert rmse_deg(normals, gt) < 5.0  # measured 3.09 deg: a ball of 0.3 x the diagonal spans much of the sphere
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
 
     again = run_cli("estimate", path, "--method", "pca")
@@ -106,7 +106,8 @@ def test_estimate_learned_with_shipped_checkpoint(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     out = read_cloud(tmp_path / "plane.pcd")
     assert out.normals.shape == (500, 3)
-    assert rmse_deg(out.normals, np.tile([0, 0, 1.0], (500, 1))) < 10.0
+    # Measured 0.84 deg with the default checkpoint, 2.35 deg with lite (the CPU's choice where it applies).
+    assert rmse_deg(out.normals, np.tile([0, 0, 1.0], (500, 1))) < 4.0
 
 
 @pytest.mark.parametrize(
