@@ -91,7 +91,7 @@ def cell(rows: list[dict], bend: float) -> str:
 
 
 def main() -> None:
-    sets = collect(NormalEstimator("learned"))
+    sets = collect(NormalEstimator("learned", checkpoint="default"))
     print("| data | " + " | ".join(f"F > {F_GATE:g}, bend > {b:g}" for b in BENDS) + " |")
     print("| --- | " + " | ".join("---:" for _ in BENDS) + " |")
     for name, rows in sets.items():

@@ -77,8 +77,8 @@ def _box_corner_cloud(n: int = 6000, sigma: float = 0.004, seed: int = 0) -> tup
 
 def test_hybrid_is_pca_on_flat_points_and_learned_on_gated_ones() -> None:
     points, _ = _box_corner_cloud()
-    hybrid = NormalEstimator("hybrid", radius=0.1, device="cpu")
-    learned = NormalEstimator("learned", radius=0.1, device="cpu")
+    hybrid = NormalEstimator("hybrid", radius=0.1, device="cpu", checkpoint="default")
+    learned = NormalEstimator("learned", radius=0.1, device="cpu", checkpoint="default")
     pca = NormalEstimator("pca", radius=0.1, k=POOL_FACTOR * learned.k, device="cpu")
     query = np.arange(0, len(points), 7)
     h, hc = hybrid.estimate(points, query)
@@ -100,10 +100,10 @@ def test_hybrid_is_pca_on_flat_points_and_learned_on_gated_ones() -> None:
 def test_gate_zero_is_learned_and_an_infinite_gate_is_pca() -> None:
     points, _ = _box_corner_cloud(3000)
     query = np.arange(0, len(points), 11)
-    learned = NormalEstimator("learned", radius=0.1, device="cpu").estimate(points, query)[0]
+    learned = NormalEstimator("learned", radius=0.1, device="cpu", checkpoint="default").estimate(points, query)[0]
     pca = NormalEstimator("pca", radius=0.1, k=4 * 128, device="cpu").estimate(points, query)[0]
-    everything = NormalEstimator("hybrid", radius=0.1, gate=0.0, bend=0.0, device="cpu")
-    nothing = NormalEstimator("hybrid", radius=0.1, gate=1e30, device="cpu")
+    everything = NormalEstimator("hybrid", radius=0.1, gate=0.0, bend=0.0, device="cpu", checkpoint="default")
+    nothing = NormalEstimator("hybrid", radius=0.1, gate=1e30, device="cpu", checkpoint="default")
     for estimator, expected in ((everything, learned), (nothing, pca)):
         cosine = np.einsum("ij,ij->i", estimator.estimate(points, query)[0], expected)
         np.testing.assert_allclose(np.abs(cosine), 1, atol=1e-6)
@@ -119,7 +119,7 @@ def test_bad_gates_are_refused(gate: object) -> None:
 def test_an_infinite_bend_is_pca_whatever_the_gate() -> None:
     points, _ = _box_corner_cloud(3000)
     query = np.arange(0, len(points), 11)
-    flat = NormalEstimator("hybrid", radius=0.1, gate=0.0, bend=1e30, device="cpu")
+    flat = NormalEstimator("hybrid", radius=0.1, gate=0.0, bend=1e30, device="cpu", checkpoint="default")
     pca = NormalEstimator("pca", radius=0.1, k=4 * 128, device="cpu").estimate(points, query)[0]
     cosine = np.einsum("ij,ij->i", flat.estimate(points, query)[0], pca)
     np.testing.assert_allclose(np.abs(cosine), 1, atol=1e-6)

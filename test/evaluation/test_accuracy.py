@@ -90,7 +90,7 @@ class Scores:
 def _scorer():
     from triplet_normal_ros.evaluation.evaluate import CloudScorer
 
-    return CloudScorer(None, "cpu")
+    return CloudScorer("default", "cpu")
 
 
 def _score(
@@ -100,7 +100,7 @@ def _score(
     _, _, best, angles = _scorer().score(points, truth, query, diagonal)
     hybrid = None
     if with_hybrid:
-        estimator = NormalEstimator("hybrid", radius=RADIUS_FRACTION * diagonal, device="cpu")
+        estimator = NormalEstimator("hybrid", radius=RADIUS_FRACTION * diagonal, device="cpu", checkpoint="default")
         hybrid = angles_rad(estimator.estimate(points, query)[0], truth) ** 2
     return Scores(angles[0] ** 2, angles[1] ** 2, best[0], hybrid)
 
@@ -253,14 +253,14 @@ def _range(kind: str) -> RangeScores:
     from triplet_normal_ros.evaluation.range_eval import SETS, evaluate_set
 
     radius, scale = SETS[kind].radius, SETS[kind].range_scale
-    learned = NormalEstimator("learned", radius=radius, device="cpu", range_scale=scale)
+    learned = NormalEstimator("learned", radius=radius, device="cpu", range_scale=scale, checkpoint="default")
     estimators = {
         # The learned pool, the nearest 4k in the ball (not a window over the whole ball, which 'auto' would take).
         "pca": NormalEstimator(
             "pca", radius=radius, k=POOL_FACTOR * learned.k, device="cpu", neighbours="kdtree", range_scale=scale
         ),
         "learned": learned,
-        "hybrid": NormalEstimator("hybrid", radius=radius, device="cpu", range_scale=scale),
+        "hybrid": NormalEstimator("hybrid", radius=radius, device="cpu", range_scale=scale, checkpoint="default"),
         "window": NormalEstimator("pca", radius=radius, device="cpu", range_scale=scale),
     }
     scores, _ = evaluate_set(kind, estimators, quick=False)

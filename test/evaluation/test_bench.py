@@ -20,9 +20,10 @@ def test_bench_writes_methods_side_by_side_searches_matmul_and_conversion(tmp_pa
     assert len(rows) == 4  # two PCA rows on each cloud
     for row in rows:
         cells = [c.strip() for c in row.strip("|").split("|")]
-        # PCA over the whole ball of an organized cloud is the integral-image window's (core/integral.py)
+        # PCA over the whole ball of an organized cloud is the integral-image window's (core/windows.py); each row is
+        # labelled with its plan's steps (core/plan.py)
         window = cells[0].startswith("depth frame") and "k = 512" in cells[1]
-        assert cells[2] == ("window" if window else "kdtree") and cells[3] == "300"
+        assert cells[2] == ("integral-image windows" if window else "pool PCA, KD-tree pools") and cells[3] == "300"
         assert float(cells[-1]) > 0 and float(cells[-2]) > 0
         if "k = 30" in cells[1]:
             assert float(cells[-1]) == 1.0  # every ratio is against this row, measured in the same run

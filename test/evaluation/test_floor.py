@@ -199,7 +199,7 @@ def test_floor_is_below_every_method_on_the_quick_eval_set(tmp_path, monkeypatch
     from triplet_normal_ros.evaluation.evaluate import CloudScorer, evaluate_validation
 
     monkeypatch.setenv(CACHE_ENV, str(tmp_path))
-    cad = [r for r in evaluate_validation(CloudScorer(None, "cpu"), 200, quick=True) if r.kind == "cad"]
+    cad = [r for r in evaluate_validation(CloudScorer("default", "cpu"), 200, quick=True) if r.kind == "cad"]
     assert {r.noise for r in cad} == {0.0, 0.01}
     for r in cad:
         assert r.floor is not None and r.floor[0] <= min(r.ours[0], r.pca[0], r.best[0])

@@ -54,7 +54,7 @@ class CloudScorer:
     """Scores ours, PCA at 5 % and the best-radius PCA on a cloud; the two estimators are reused across clouds (the
     checkpoint is loaded once)."""
 
-    def __init__(self, checkpoint: str | None, device: str) -> None:
+    def __init__(self, checkpoint: str, device: str) -> None:
         from ..core.estimator import NormalEstimator
 
         self.ours = NormalEstimator("learned", radius=RADIUS_FRACTION, checkpoint=checkpoint, device=device)
