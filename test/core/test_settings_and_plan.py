@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import threading
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,10 +13,7 @@ from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.plan import CLOUDS, make_plan, plan_table
 from triplet_normal_ros.core.settings import Settings, reason
 from triplet_normal_ros.errors import EstimatorError
-
 from triplet_normal_ros.evaluation.metrics import angles_deg
-
-DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 
 @pytest.mark.parametrize(
@@ -83,10 +79,11 @@ def test_the_window_runs_only_where_the_grid_is_a_range_image() -> None:
     assert make_plan(Settings(method="pca", k=PCA_DEFAULT_K), "cpu", True, True).survey == "window"
 
 
-def test_the_plan_table_covers_every_method_and_cloud_and_node_md_shows_it() -> None:
+def test_the_plan_table_has_a_row_per_method_and_cloud() -> None:
+    """NODE.md shows this table (test_docs checks it is the same)."""
     table = plan_table()
     assert len(table.strip().splitlines()) == 2 + len(METHODS) * len(CLOUDS)
-    assert table in (DOCS / "NODE.md").read_text(), "regenerate NODE.md's table: python -m triplet_normal_ros.core.plan"
+    assert table.count("integral-image windows") == 4  # pca and hybrid, on a range image, CPU and GPU
 
 
 def test_a_call_reports_the_plan_it_ran() -> None:
@@ -130,7 +127,7 @@ def test_one_estimator_serves_two_threads_as_it_serves_one(method: str) -> None:
         try:
             for _ in range(3):
                 results[name].append((calls[name](), estimator.last_run.network))
-        except BaseException as error:  # noqa: BLE001 - any failure in a thread must reach the test
+        except BaseException as error:  # any failure in a thread must reach the test
             errors.append(error)
 
     threads = [threading.Thread(target=worker, args=(name,)) for name in calls]

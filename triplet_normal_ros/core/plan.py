@@ -3,7 +3,8 @@
 Every choice the estimator makes about a cloud is made here, by `make_plan`, from its settings and three facts about
 the cloud: the device type, whether it is organized (an image with more than one row) and whether that image is a range
 image in its sensor's frame (`organized.range_pitch`). The estimator executes the returned `Plan`; the node's start-up
-line prints it, `bench` labels its rows with it, and docs/NODE.md's path table is `plan_table()`.
+line prints it, `bench` labels its rows with it, and docs/NODE.md's path table is `plan_table()`
+(docs/tools/path_table.py writes it).
 """
 
 from __future__ import annotations
@@ -139,7 +140,3 @@ def plan_table(settings: Settings | None = None) -> str:
             cells = [make_plan(chosen, device, organized, range_image).steps for device in ("cpu", "cuda")]
             lines.append(f"| `{method}` | {label} | {cells[0]} | {cells[1]} |")
     return "\n".join(lines) + "\n"
-
-
-if __name__ == "__main__":  # docs/NODE.md's "Which path runs" table
-    print(plan_table(), end="")
