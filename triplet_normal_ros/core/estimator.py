@@ -26,7 +26,7 @@ from .device import resolve_device
 from .frames import surface_variation
 from .hybrid import hybrid_kernel, window_hybrid
 from .kernels import CHUNK, PCA_CHUNK, Call, RunInfo, finish, learned_kernel, over_pools, pca_kernel
-from .plan import Plan, checkpoint_for, make_plan, plan_cloud
+from .plan import checkpoint_for, plan_cloud
 from .search import ScanLines, is_organized, open_search, search_radii
 from .settings import Settings
 from .windows import MomentImage
@@ -165,12 +165,6 @@ class NormalEstimator:
         if plan.survey == "window":
             return self._windows(call, plan, points, cloud, shape, pitch, query, progress)
         return self._pools(call, plan, points, cloud, shape, pitch, query, progress)
-
-    def plan(self, shape: tuple[int, int] | None = None, n: int = 0, range_image: bool = True) -> Plan:
-        """The plan a cloud of `n` points (an image of `shape`, a range image or not) would get under the current
-        settings, without a cloud: the node's start-up line and `bench` print it."""
-        organized = is_organized(shape, n)
-        return make_plan(self._settings, self.device.type, organized, organized and range_image)
 
     def search_radii(self, ranges: np.ndarray) -> np.ndarray:
         """The ball radius pools are searched at for points at these `ranges` from the sensor (`search.search_radii`):
