@@ -27,7 +27,7 @@ from .frames import surface_variation
 from .hybrid import hybrid_kernel, window_hybrid
 from .kernels import CHUNK, PCA_CHUNK, Call, RunInfo, finish, learned_kernel, over_pools, pca_kernel
 from .plan import checkpoint_for, plan_cloud
-from .search import ScanLines, is_organized, open_search, search_radii
+from .search import ScanLines, open_search, search_radii
 from .settings import Settings
 from .windows import MomentImage
 
@@ -199,7 +199,7 @@ class NormalEstimator:
             progress(len(query) - len(todo))
         kernel = {"pca": pca_kernel, "learned": learned_kernel, "hybrid": hybrid_kernel}[plan.kernel]
         chunk = PCA_CHUNK if plan.kernel == "pca" else CHUNK
-        lines = ScanLines(shape, self.device) if is_organized(shape, len(points)) else None
+        lines = ScanLines(shape, self.device) if plan.scan_lines else None
         for out, answer, answer_curvature in over_pools(call, search, cloud, query, todo, kernel, chunk, lines):
             normals[out], curvature[out] = answer, answer_curvature
             if progress is not None:

@@ -18,6 +18,7 @@ measures the angular spacing that both this search and the integral-image window
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 
@@ -27,6 +28,16 @@ RangePitch = tuple[torch.Tensor, torch.Tensor]
 #: A sensor-frame range image has near-constant angular pitch; beyond this max/min spread (robust quantiles) of the
 #: adjacent-ray angles the cloud is not in its sensor's frame (or not a range image) and the KD-tree is used.
 MAX_PITCH_SPREAD = 4.0
+#: A range image's rows and columns are scan lines: no step between adjacent rays turns back or differs from the
+#: median step by more than this factor ...
+SCAN_STEP_SPREAD = 4.0
+#: ... at more than this share of the steps along either axis. Real frames (a Kinect, an Ouster OS-1-128) and the
+#: simulated sets break the rule at none of their steps; an Ouster scan whose beams are not destaggered breaks it at
+#: about half of its column steps, and column-major order, shuffled rows and a filter's layout at 0.5-65 %
+#: (test/core/test_grid_check.py).
+MAX_BROKEN_STEPS = 0.001
+#: How many rows (and columns) `scan_line_breaks` reads.
+_CHECKED_LINES = 64
 #: Half-side of the coarse probe lattice that measures the ball's extent per axis before the full lattice is laid.
 _PROBE_HALF = 3
 #: Adjacent-ray angles are measured on at most this many pixel pairs per axis (the quantiles need no more).
@@ -99,12 +110,66 @@ def _spiral_offsets(half: int, device: torch.device) -> torch.Tensor:
     return grid[order]
 
 
+@dataclass(frozen=True)
+class GridCheck:
+    """What an organized cloud's grid may be trusted with: `scan_lines` when its rows and columns are a sensor's scan
+    lines; its `pitch` when, besides, the angles between adjacent rays look like one sensor's (a range image in its
+    sensor's frame, measured only when asked), else None; `reason` says why not, in words for a log line."""
+
+    scan_lines: bool
+    pitch: RangePitch | None = None
+    reason: str = ""
+
+
+def inspect_grid(cloud: torch.Tensor, shape: tuple[int, int], pitch: bool = True) -> GridCheck:
+    """The one test of whether pixel neighbours are 3D neighbours, so that windows and pixel-grid pools may stand in
+    for balls: every row and every column must be a scan line (`scan_line_breaks`, a few ms) and, with `pitch`, the
+    angle between adjacent rays must look like one sensor's (`ray_pitch`). Rays are the points' directions from the
+    origin, which a range image's own geometry (depth edges, holes, noise along the ray) does not change."""
+    grid = cloud.view(*shape, 3)
+    for axis, lines in ((1, "rows"), (0, "columns")):
+        broken = scan_line_breaks(grid, axis)
+        if broken > MAX_BROKEN_STEPS:
+            return GridCheck(False, None, f"{broken:.1%} of the steps along its {lines} leave the scan line (beams "
+                             "not destaggered, column-major or shuffled order, or organized by a filter)")
+    if not pitch:
+        return GridCheck(True)
+    row, col = ray_pitch(grid, 0), ray_pitch(grid, 1)
+    if row is None or col is None:
+        return GridCheck(True, None, "the angles between adjacent rays are not one sensor's (not in its frame)")
+    return GridCheck(True, (row, col))
+
+
 def range_pitch(cloud: torch.Tensor, shape: tuple[int, int]) -> RangePitch | None:
     """The angular pitch of each pixel row and column of an organized cloud (H·W, 3), or None when the cloud is not a
-    range image in its sensor's frame: the one test of whether pixel neighbours are 3D neighbours."""
-    grid = cloud.view(*shape, 3)
-    row, col = ray_pitch(grid, 0), ray_pitch(grid, 1)
-    return None if row is None or col is None else (row, col)
+    range image in its sensor's frame (`inspect_grid`)."""
+    return inspect_grid(cloud, shape).pitch
+
+
+def scan_line_breaks(grid: torch.Tensor, axis: int) -> float:
+    """The share of steps along `axis` of an (H, W, 3) grid of points (NaN where none), on _CHECKED_LINES of its
+    lines, that leave a scan line. A step is one between the rays (directions from the origin) of adjacent pixels; it
+    leaves the line when its angle is not within a factor SCAN_STEP_SPREAD of the median step, or when it turns back
+    (its direction more than 60° from the previous step's). A sensor's rows and columns have neither; a layout not in
+    sensor order has many."""
+    across = 1 - axis  # the lines: a sample of them shows a layout's breaks, which repeat along every line
+    lines = torch.linspace(0, grid.shape[across] - 1, min(grid.shape[across], _CHECKED_LINES), device=grid.device)
+    points = grid.index_select(across, lines.round().long().unique()).to(torch.float64)
+    length = points.norm(dim=-1, keepdim=True)
+    rays = torch.where(length > 0, points / length, torch.nan)  # a point at the origin has no ray
+    a, b = rays.narrow(axis, 0, rays.shape[axis] - 1), rays.narrow(axis, 1, rays.shape[axis] - 1)
+    step = b - a
+    angle = 2 * torch.asin((step.norm(dim=-1) / 2).clamp(max=1.0))  # NaN where either ray is missing
+    known = torch.isfinite(angle)
+    if int(known.sum()) < 16:
+        return 1.0
+    median = angle[known].median()
+    jumps = known & ((angle > SCAN_STEP_SPREAD * median) | (angle < median / SCAN_STEP_SPREAD))
+    before, after = step.narrow(axis, 0, step.shape[axis] - 1), step.narrow(axis, 1, step.shape[axis] - 1)
+    turn = torch.nn.functional.cosine_similarity(before, after, dim=-1)
+    pairs = known.narrow(axis, 0, known.shape[axis] - 1) & known.narrow(axis, 1, known.shape[axis] - 1)
+    turns = pairs & (turn < 0.5)
+    return max(float(jumps.sum()) / float(known.sum()), float(turns.sum()) / max(float(pairs.sum()), 1.0))
 
 
 def ray_pitch(grid: torch.Tensor, axis: int) -> torch.Tensor | None:

@@ -9,13 +9,13 @@ line prints it, `bench` labels its rows with it, and docs/NODE.md's path table i
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
 from .conventions import METHODS, PCA_DEFAULT_K
 from .defaults import shipped_checkpoint
-from .organized import RangePitch, range_pitch
+from .organized import RangePitch, inspect_grid
 from .search import is_organized
 from .settings import Settings
 
@@ -39,12 +39,17 @@ class Plan:
     - `search`: the pool search for the points that need pools: 'kdtree', 'grid', 'voxel', or 'none' (window pca
       needs no pool).
     - `checkpoint`: the network's checkpoint (a shipped name or a path), '' for pca.
+    - `scan_lines`: whether the cloud's image rows and columns are a sensor's scan lines, so that a neighbourhood on
+      one of them is one scan line (a line: no normal, whatever its noise says).
+    - `note`: why an organized cloud's grid was not trusted ('' when it was), for a log line.
     """
 
     kernel: str
     survey: str
     search: str
     checkpoint: str
+    scan_lines: bool = False
+    note: str = ""
 
     @property
     def path(self) -> str:
@@ -87,7 +92,7 @@ def make_plan(settings: Settings, device_type: str, organized: bool, range_image
     window = kernel != "learned" and grid and wants_window
     survey = "window" if window else ("none" if kernel == "learned" else "pool")
     search = "none" if window and kernel == "pca" else _pool_search(settings.neighbours, device_type, organized, grid)
-    return Plan(kernel, survey, search, checkpoint_for(settings, device_type))
+    return Plan(kernel, survey, search, checkpoint_for(settings, device_type), scan_lines=grid)
 
 
 def _pool_search(neighbours: str, device_type: str, organized: bool, grid: bool) -> str:
@@ -109,16 +114,19 @@ def checkpoint_for(settings: Settings, device_type: str) -> str:
 def plan_cloud(
     settings: Settings, device: torch.device, cloud: torch.Tensor, shape: tuple[int, int] | None
 ) -> tuple[Plan, RangePitch | None]:
-    """The plan for `cloud` (N, 3) on `device`, and the range image's pitch when the plan reads the grid. The pitch
-    (a few passes over the image) is measured only when the plan would use it."""
+    """The plan for `cloud` (N, 3) on `device`, and the range image's pitch when the plan reads the grid. An organized
+    cloud's grid is inspected (`organized.inspect_grid`): its scan lines always, its pitch when the plan would read
+    the grid. A grid that is not a range image gets the pool path, and the plan's `note` says why."""
     organized = is_organized(shape, len(cloud))
     hopeful = make_plan(settings, device.type, organized, range_image=organized)
-    if not hopeful.uses_range_image:
+    if not organized:
         return hopeful, None
-    pitch = range_pitch(cloud, shape)
-    if pitch is None:
-        return make_plan(settings, device.type, organized, range_image=False), None
-    return hopeful, pitch
+    check = inspect_grid(cloud, shape, pitch=hopeful.uses_range_image)
+    if check.reason:
+        note = f"the {shape[0]}x{shape[1]} organized cloud is not a range image: {check.reason}; pools instead"
+        plan = make_plan(settings, device.type, organized, range_image=False)
+        return replace(plan, scan_lines=check.scan_lines, note=note), None
+    return hopeful, check.pitch
 
 
 #: The clouds `plan_table` covers: (label, organized, range image).

@@ -1,0 +1,112 @@
+"""A grid is trusted only when it is a range image: layouts real drivers produce that are not in sensor order (beams not
+destaggered, column-major order, shuffled rows, a cloud a filter reshaped) take the pool path and its answer."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from triplet_normal_ros.core.cloud import without_no_returns
+from triplet_normal_ros.core.conventions import LIDAR_RADIUS, LIDAR_RANGE_SCALE
+from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.organized import MAX_BROKEN_STEPS, inspect_grid, scan_line_breaks
+from triplet_normal_ros.io.bags import InputBag, decode_cloud
+from triplet_normal_ros.io.pointcloud2 import read_xyz
+from triplet_normal_ros.simulation.depth_camera import depth_frame
+from triplet_normal_ros.simulation.lidar import lidar_scan
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+#: The pixel shift of each of an OS-1's beams in a scan that is not destaggered (its pattern repeats every 4 beams).
+OUSTER_SHIFT = np.array([12, 4, -4, -12])
+
+
+def _first_cloud(bag: str, topic: str) -> tuple[np.ndarray, tuple[int, int]]:
+    with InputBag(DATA / bag) as reader:
+        cloud = decode_cloud(next(iter(reader.messages({topic}))))
+    return without_no_returns(read_xyz(cloud)).astype(np.float64), (cloud.height, cloud.width)
+
+
+@pytest.fixture(scope="module")
+def ouster() -> tuple[np.ndarray, tuple[int, int]]:
+    return _first_cloud("ouster_os1_128", "/ouster/points")
+
+
+@pytest.fixture(scope="module")
+def kinect() -> tuple[np.ndarray, tuple[int, int]]:
+    return _first_cloud("kinect_xtion_frames", "/camera/depth/points")
+
+
+def staggered(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The scan as a driver that does not destagger publishes it: each beam's row shifted by its pixel offset."""
+    grid = points.reshape(*shape, 3)
+    columns = (np.arange(shape[1])[None, :] + OUSTER_SHIFT[np.arange(shape[0]) % 4][:, None]) % shape[1]
+    return np.take_along_axis(grid, columns[..., None], axis=1).reshape(-1, 3)
+
+
+def column_major(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    return points.reshape(*shape, 3).transpose(1, 0, 2).reshape(-1, 3)
+
+
+def shuffled_rows(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    return points.reshape(*shape, 3)[np.random.default_rng(0).permutation(shape[0])].reshape(-1, 3)
+
+
+def filtered(points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The finite points sorted by x and cut into rows, as a filter that keeps `height` would leave them."""
+    finite = points[np.isfinite(points).all(axis=1)]
+    return np.resize(finite[np.argsort(finite[:, 0])], (shape[0] * shape[1], 3))
+
+
+LAYOUTS = {"staggered": staggered, "column-major": column_major, "shuffled rows": shuffled_rows, "filtered": filtered}
+
+
+def _check(points: np.ndarray, shape: tuple[int, int]):
+    return inspect_grid(torch.from_numpy(points), shape)
+
+
+def test_real_and_simulated_range_images_are_trusted_with_no_broken_step(ouster, kinect) -> None:
+    depth, lidar = depth_frame(0), lidar_scan(0)
+    frames = [ouster, kinect, (depth.points.reshape(-1, 3).astype(np.float64), depth.points.shape[:2]),
+              (lidar.points.reshape(-1, 3).astype(np.float64), lidar.points.shape[:2])]  # fmt: skip
+    for points, shape in frames:
+        check = _check(points, shape)
+        assert check.scan_lines and check.pitch is not None, check.reason
+        grid = torch.from_numpy(points).view(*shape, 3)
+        assert scan_line_breaks(grid, 0) == 0 and scan_line_breaks(grid, 1) == 0
+
+
+@pytest.mark.parametrize("layout", sorted(LAYOUTS))
+def test_layouts_not_in_sensor_order_are_refused_with_a_reason(layout: str, ouster, kinect) -> None:
+    for points, shape in (ouster, kinect):
+        check = _check(LAYOUTS[layout](points, shape), shape)
+        assert check.pitch is None and not check.scan_lines, layout
+        assert "leave the scan line" in check.reason
+    # column-major on the tall Ouster grid breaks only where a column of beams wraps to the next: still far above
+    # the threshold, which real frames never reach
+    grid = torch.from_numpy(column_major(*ouster)).view(*ouster[1], 3)
+    assert scan_line_breaks(grid, 1) > 5 * MAX_BROKEN_STEPS
+
+
+def test_a_lidar_scan_not_destaggered_gets_the_pool_answer_not_window_normals(ouster) -> None:
+    points, shape = ouster
+    cloud = staggered(points, shape)
+    preset = {"radius": LIDAR_RADIUS, "range_scale": LIDAR_RANGE_SCALE, "device": "cpu"}
+    organized = NormalEstimator("pca", **preset)
+    normals, _ = organized.estimate(cloud, shape=shape)
+    run = organized.last_run
+    assert run.plan.survey == "pool" and run.search == "kdtree" and not run.plan.scan_lines
+    assert "not a range image" in run.plan.note and "128x1024" in run.plan.note
+    unorganized, _ = NormalEstimator("pca", **preset).estimate(cloud)
+    np.testing.assert_array_equal(normals, unorganized)
+    returns = np.isfinite(cloud).all(axis=1)
+    assert np.isfinite(normals[returns]).all(axis=1).mean() > 0.9  # the pool path answers 93 % of the returns
+
+
+def test_the_destaggered_scan_still_takes_the_window(ouster) -> None:
+    points, shape = ouster
+    estimator = NormalEstimator("pca", radius=LIDAR_RADIUS, range_scale=LIDAR_RANGE_SCALE, device="cpu")
+    estimator.estimate(points, shape=shape)
+    assert estimator.last_run.search == "window" and estimator.last_run.plan.note == ""
