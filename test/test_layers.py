@@ -1,8 +1,10 @@
 """The package's layering: imports run downward only, there are no cycles, and only ros/ needs rclpy.
 
-Layer order: errors < core, io < simulation < training < evaluation < cli < ros. core and io share a layer but do not
-import each other; io does not import torch (message and file conversion stay light), and neither does simulation
-(sensor simulation is numpy and scipy), which needs no file or message conversion either, so it may not import io.
+Layer order: errors < core, io < simulation, pipeline < training < evaluation < cli < ros. core and io share a layer
+but do not import each other; io does not import torch (message and file conversion stay light), and neither does
+simulation (sensor simulation is numpy and scipy), which needs no file or message conversion either, so it may not
+import io. pipeline (the per-message step the node and `bag` share) is the one place where core and io meet below the
+CLI; it shares a layer with simulation, and neither imports the other.
 The static checks read every module's source with ``ast``, imports inside functions included, so a lazy upward
 import counts too. The dynamic check imports every module below ros/ in a fresh interpreter where rclpy cannot be
 imported (marked slow: it starts a process).
@@ -23,16 +25,19 @@ import triplet_normal_ros
 ROOT = triplet_normal_ros.__name__
 PACKAGE_DIR = Path(triplet_normal_ros.__file__).parent
 #: Rank of each top-level part; the root package itself (``__version__`` only) ranks with errors.
-LAYERS = {"": 0, "errors": 0, "core": 1, "io": 1, "simulation": 2, "training": 3, "evaluation": 4, "cli": 5, "ros": 6}
+LAYERS = {
+    "": 0, "errors": 0, "core": 1, "io": 1, "simulation": 2, "pipeline": 2, "training": 3, "evaluation": 4, "cli": 5,
+    "ros": 6,
+}  # fmt: skip
 #: (importer, imported) pairs that are refused even where the ranks would allow the import.
-APART = {("core", "io"), ("io", "core"), ("simulation", "io")}
+APART = {("core", "io"), ("io", "core"), ("simulation", "io"), ("simulation", "pipeline"), ("pipeline", "simulation")}
 #: Third-party imports a part must not make, each with the reason.
 FORBIDDEN = {
     "io": {"torch": "io converts messages and files, it needs no torch"},
     "simulation": {"torch": "simulated sensors are numpy and scipy, they need no torch"},
 }
 ROS_ONLY = "rclpy"
-ROS_FREE = ("core", "io", "simulation", "training", "evaluation")
+ROS_FREE = ("core", "io", "simulation", "pipeline", "training", "evaluation")
 
 
 def module_files() -> dict[str, Path]:
@@ -144,7 +149,7 @@ def test_there_is_no_import_cycle() -> None:
 
 def test_the_checks_catch_what_they_are_for() -> None:
     """Planted faults, so the two tests above can fail for the right reason: relative imports resolve, upward and
-    sideways imports, forbidden libraries and cycles are reported."""
+    sideways imports, forbidden libraries and cycles are reported; pipeline may import io but not simulation."""
     sources = {
         ROOT: ("", True),
         f"{ROOT}.core": ("", True),
@@ -156,6 +161,8 @@ def test_the_checks_catch_what_they_are_for() -> None:
         f"{ROOT}.ros.node": ("import rclpy\nfrom ..core import a\n", False),
         f"{ROOT}.simulation": ("", True),
         f"{ROOT}.simulation.d": ("import torch\nfrom ..io import c\n", False),
+        f"{ROOT}.pipeline": ("", True),
+        f"{ROOT}.pipeline.e": ("from ..io import c\nfrom ..simulation import d\n", False),
     }
     edges = graph(sources)
     assert edges[f"{ROOT}.core.a"] == {f"{ROOT}.core.b", f"{ROOT}.ros.node"}
@@ -166,6 +173,7 @@ def test_the_checks_catch_what_they_are_for() -> None:
         f"{ROOT}.core.b imports {ROOT}.io.c (core may not import io)",
         f"{ROOT}.io.c imports rclpy.node: only ros/ may import rclpy",
         f"{ROOT}.io.c imports torch: io converts messages and files, it needs no torch",
+        f"{ROOT}.pipeline.e imports {ROOT}.simulation.d (pipeline may not import simulation)",
         f"{ROOT}.simulation.d imports torch: simulated sensors are numpy and scipy, they need no torch",
         f"{ROOT}.simulation.d imports {ROOT}.io.c (simulation may not import io)",
     ]

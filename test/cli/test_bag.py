@@ -425,7 +425,7 @@ def test_output_topic_that_exists_in_the_input(small_bag: Path, tmp_path: Path, 
     ("extra", "message"),
     [
         (["--radius", "0"], "--radius must be a finite number > 0"),
-        (["--k", "2"], "--k must be >= 3"),
+        (["--k", "2"], "--k must be an integer >= 3"),
         (["--segment-seconds", "-1"], "--segment-seconds must be a finite number >= 0"),
         (["--viewpoint", "0", "nan", "0"], "--viewpoint must be three finite numbers"),
         (["--overwrite", "--resume"], "argument --resume: not allowed with argument --overwrite"),

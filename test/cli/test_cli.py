@@ -124,7 +124,7 @@ def test_estimate_learned_with_shipped_checkpoint(tmp_path: Path) -> None:
         ),
         ("ok.xyz", ["estimate", "{d}/ok.xyz", "--out", "{d}/o.txt"], 2, "unknown output suffix"),
         ("ok.xyz", ["estimate", "{d}/ok.xyz", "--radius", "1", "--radius-rel", "0.1"], 2, "not allowed with"),
-        ("ok.xyz", ["estimate", "{d}/ok.xyz", "--k", "2"], 2, "--k must be >= 3"),
+        ("ok.xyz", ["estimate", "{d}/ok.xyz", "--k", "2"], 2, "--k must be an integer >= 3"),
         ("ok.xyz", ["estimate", "{d}/ok.xyz", "--device", "gpu7"], 2, "device must be"),
         (None, ["frobnicate"], 2, "invalid choice"),
     ],

@@ -54,7 +54,6 @@ def test_settings_defaults_agree_with_the_declared_defaults() -> None:
         ("k", 1),
         ("k", 2),
         ("k", -1),
-        ("k", 100_001),
         ("k", 3.5),
         ("gate", -1.0),
         ("gate", float("nan")),
@@ -133,9 +132,10 @@ def test_estimator_args_map_the_empty_defaults_to_the_methods_and_the_devices() 
     args = NodeSettings(method="pca").estimator_args()
     assert args["k"] is None and args["method"] == "pca"
     assert NodeSettings(k=64, checkpoint="/x").estimator_args()["k"] == 64
-    assert NodeSettings(device="cpu").estimator_args()["checkpoint"] == "lite"
-    assert NodeSettings(device="cuda").estimator_args()["checkpoint"] == "default"
-    assert NodeSettings(device="cpu", checkpoint="default").estimator_args()["checkpoint"] == "default"
+    assert NodeSettings(device="cpu").estimator_args()["checkpoint"] == ""  # the device's shipped one
+    assert NodeSettings(device="cpu").checkpoint_in_force() == "lite"
+    assert NodeSettings(device="cuda").checkpoint_in_force() == "default"
+    assert NodeSettings(device="cpu", checkpoint="default").checkpoint_in_force() == "default"
 
 
 # -- the node itself, in process ------------------------------------------------------------------------------------
@@ -177,18 +177,20 @@ def test_k_is_declared_with_both_meanings_and_zero_as_the_method_default(node: T
     d = node.describe_parameter("k")
     assert "points per patch" in d.description and "neighbours" in d.description
     assert "checkpoint's k" in d.description and str(PCA_DEFAULT_K) in d.description
-    assert (d.integer_range[0].from_value, d.additional_constraints) == (0, "0 or >= 3")
+    assert d.additional_constraints == "0 (the method's default) or an integer >= 3"
     assert node.get_parameter("k").value == K_METHOD_DEFAULT == 0
-    assert "k must be 0 (the method's default) or >= 3" in validate("k", 2)
+    assert validate("k", 2) == "k must be an integer >= 3, got 2 (0 means the method's default)"
 
 
 def _k_in_force(node: TripletNormalNode) -> int:
-    """The k the worker runs with: estimate a small plane with the node's current snapshot, read the estimator's k."""
+    """The k the worker runs with: that of the snapshot it passes with each cloud, the estimator's own for None (a
+    small plane is estimated under the snapshot, to show the estimator takes it)."""
     estimator, settings = node._active
+    snapshot = settings.message_settings().estimator
     plane = np.random.default_rng(0).uniform(-0.05, 0.05, (200, 3)).astype(np.float32) * [1, 1, 0]
-    normals, _ = node._estimate(estimator, settings, plane)
+    normals, _ = estimator.estimate(plane, settings=snapshot)
     assert np.isfinite(normals).all()
-    return estimator.k
+    return snapshot.k or estimator.default_k
 
 
 def test_k_zero_means_pca_default_k_for_pca(node: TripletNormalNode) -> None:

@@ -3,6 +3,7 @@
 import argparse
 from pathlib import Path
 
+from ..core import defaults
 from . import args as checks
 
 DESCRIPTION = """Train every ablation variant at a stated, reduced budget and score it on the validation set.
@@ -20,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--epochs", type=int, default=10)
     parser.add_argument("--per-cloud", type=int, default=1000, help="validation query points per cloud")
     parser.add_argument("--run-dir", type=Path, default=Path("out/ablation"))
-    parser.add_argument("--device", default="auto")
+    parser.add_argument("--device", default=defaults.DEVICE)
     parser.add_argument("--out", type=Path, metavar="MD", help="results markdown to update (e.g. docs/RESULTS.md)")
 
 

@@ -1,4 +1,9 @@
-"""Argument checks shared by the subcommands: each failure is a UsageError with the option's name in it."""
+"""Argument checks shared by the subcommands: each failure is a UsageError with the option's name in it.
+
+An option that is an estimator setting is checked by that setting's one rule (`core.settings.reason`, which the node's
+parameters and the estimator apply too), its words put under the option's name; the viewpoint by the message step's
+rule (`pipeline.messages.viewpoint_reason`, the node's too). Defaults come from `core.defaults`.
+"""
 
 import argparse
 import math
@@ -6,8 +11,28 @@ import shlex
 from collections.abc import Sequence
 from typing import Any
 
-from ..core.conventions import HYBRID_BEND, HYBRID_GATE
+from ..core import defaults
+from ..core.settings import Settings, reason
 from ..errors import UsageError
+
+#: The options that are estimator settings, by setting (the seed is no option: answers repeat exactly).
+SETTING_OPTIONS = {
+    "method": "method",
+    "radius": "radius",
+    "k": "k",
+    "checkpoint": "checkpoint",
+    "device": "device",
+    "batch_size": "batch-size",
+    "gate": "gate",
+    "bend": "bend",
+    "neighbours": "neighbours",
+    "range_scale": "range-scale",
+}
+
+#: What an absent --checkpoint means, for --help: the node's choice.
+SHIPPED_HELP = "default: the node's, the shipped one for the device: " + ", ".join(
+    f"{name} on a {'GPU' if kind == 'cuda' else kind.upper()}" for kind, name in defaults.SHIPPED_FOR_DEVICE.items()
+)
 
 
 def positive(name: str, value: float | None) -> None:
@@ -22,13 +47,33 @@ def at_least(name: str, value: int | None, least: int) -> None:
         raise UsageError(f"--{name} must be >= {least}, got {value}")
 
 
-def device(name: str | None) -> None:
-    """A device string torch can honour here (see core.device)."""
-    from ..core.device import validate_device_name
+def setting(name: str, value: Any, option: str | None = None) -> Any:
+    """`value`, when the rule of estimator setting `name` takes it; else a UsageError in the rule's words, under the
+    option's name (`option`, default --name)."""
+    why = reason(name, value)
+    if why:
+        raise UsageError(as_option(why, name, option or name.replace("_", "-")))
+    return value
 
-    reason = None if name is None else validate_device_name(name)
-    if reason:
-        raise UsageError(reason)
+
+def as_option(why: str, name: str, option: str) -> str:
+    """A rule's refusal of setting `name` ('batch_size must be ...') as the refusal of `--option`."""
+    return f"--{option}{why[len(name) :]}" if why.startswith(f"{name} ") else f"--{option}: {why}"
+
+
+def device(name: str | None) -> None:
+    """A device string torch can honour here (the estimator's `device` rule, see core.device)."""
+    if name is not None:
+        setting("device", name)
+
+
+def viewpoint(value: Sequence[float] | None) -> None:
+    """--viewpoint, when given: three finite numbers (the node's `viewpoint` rule)."""
+    from ..pipeline.messages import viewpoint_reason
+
+    why = None if value is None else viewpoint_reason(value)
+    if why:
+        raise UsageError(as_option(why, "viewpoint", "viewpoint"))
 
 
 def command_line(subcommand_argv: Sequence[str]) -> str:
@@ -47,15 +92,17 @@ def add_hybrid_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--gate",
         type=float,
+        default=defaults.GATE,
         metavar="G",
-        help=f"hybrid: F statistic (quadric vs plane) above which the network may answer (default {HYBRID_GATE:g})",
+        help=f"hybrid: F statistic (quadric vs plane) above which the network may answer (default {defaults.GATE:g})",
     )
     p.add_argument(
         "--bend",
         type=float,
+        default=defaults.BEND,
         metavar="B",
         help="hybrid: ... and the quadric's RMS departure from the plane, as a fraction of the radius, above which it "
-        f"does (default {HYBRID_BEND:g}; 0 leaves it to --gate)",
+        f"does (default {defaults.BEND:g}; 0 leaves it to --gate)",
     )
 
 
@@ -64,9 +111,10 @@ def add_sensor_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--range-scale",
         type=float,
-        default=0.0,
+        default=defaults.RANGE_SCALE,
         metavar="S",
-        help="grow each ball to S x the point's range where that exceeds the radius (default 0: fixed; LiDAR: 0.03)",
+        help="grow each ball to S x the point's range where that exceeds the radius (default "
+        f"{defaults.RANGE_SCALE:g}: fixed; LiDAR: {defaults.LIDAR['range_scale']:g})",
     )
     p.add_argument(
         "--keep-zeros",
@@ -75,31 +123,28 @@ def add_sensor_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def range_scale(value: float) -> None:
-    if not (math.isfinite(value) and 0 <= value <= 1):
-        raise UsageError(f"--range-scale must be a number in [0, 1], got {value}")
+def check_settings(args: argparse.Namespace) -> None:
+    """Every estimator-setting option given (`SETTING_OPTIONS`), each by its setting's rule; before any work."""
+    for name, option in SETTING_OPTIONS.items():
+        value = getattr(args, name, None)
+        if value is not None:
+            setting(name, value, option)
 
 
-def hybrid_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The given hybrid thresholds as NormalEstimator keywords, after checking them (UsageError)."""
-    options = {}
-    for name, what in (("gate", "F statistic"), ("bend", "fraction of the radius")):
-        value = getattr(args, name)
-        if value is None:
-            continue
-        if not (math.isfinite(value) and value >= 0):
-            raise UsageError(f"--{name} must be a finite {what} >= 0, got {value}")
-        options[name] = value
-    return options
+def estimator_settings(args: argparse.Namespace, radius: float) -> Settings:
+    """The estimator settings the options describe, with ball `radius` (--radius, or one derived from the cloud);
+    an absent --k or --checkpoint means the method's own k and the device's shipped checkpoint."""
+    values = {name: getattr(args, name) for name in SETTING_OPTIONS if name != "radius"}
+    for name, value in {**values, "radius": radius}.items():
+        setting(name, value, SETTING_OPTIONS[name])
+    return Settings(radius=radius, **values)
 
 
 def make_estimator(args: argparse.Namespace, radius: float):
-    """The `NormalEstimator` that the estimator options of `estimate` and `bag` describe (torch is imported here)."""
+    """The `NormalEstimator` that the estimator options of `estimate`, `bag` and `bags` describe (torch is imported
+    here)."""
+    from dataclasses import asdict
+
     from ..core.estimator import NormalEstimator
 
-    options = {"k": args.k, "checkpoint": args.checkpoint, "device": args.device, "neighbours": args.neighbours}
-    options["range_scale"] = args.range_scale
-    options.update(hybrid_options(args))
-    if args.batch_size is not None:
-        options["batch_size"] = args.batch_size
-    return NormalEstimator(method=args.method, radius=radius, **options)
+    return NormalEstimator(**asdict(estimator_settings(args, radius)))

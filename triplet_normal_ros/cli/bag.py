@@ -1,5 +1,7 @@
 """`triplet-normal bag IN OUT --topic T`: normals for every PointCloud2 of a rosbag2, into a new rosbag2."""
 
+from __future__ import annotations
+
 import argparse
 import signal
 import sys
@@ -7,7 +9,9 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -15,6 +19,10 @@ from ..core import defaults
 from ..core.conventions import METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
 from ..errors import CloudFormatError, EstimationCancelled, EstimatorError, UsageError
 from . import args as checks
+
+if TYPE_CHECKING:
+    from ..core.estimator import NormalEstimator
+    from ..pipeline.messages import MessageSettings
 
 #: io.bag_output.SEGMENT_SECONDS (a test checks), written here so that `--help` does not import rosbags.
 SEGMENT_SECONDS = 30.0
@@ -65,12 +73,25 @@ def add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--checkpoint",
         metavar="C",
-        help="safetensors path or shipped name (default: the node's: lite on a CPU, default on a GPU)",
+        help=f"safetensors path or shipped name ({checks.SHIPPED_HELP})",
     )
-    p.add_argument("--device", default=defaults.DEVICE, metavar="D", help="auto, cpu, cuda or cuda:N (default auto)")
-    p.add_argument("--batch-size", type=int, metavar="B", help="patches per network call (default: the estimator's)")
+    p.add_argument(
+        "--device", default=defaults.DEVICE, metavar="D", help=f"auto, cpu, cuda or cuda:N (default {defaults.DEVICE})"
+    )
+    p.add_argument(
+        "--batch-size",
+        type=int,
+        default=defaults.BATCH_SIZE,
+        metavar="B",
+        help=f"patches per network call (default {defaults.BATCH_SIZE})",
+    )
     checks.add_hybrid_options(p)
-    p.add_argument("--neighbours", choices=NEIGHBOUR_SEARCHES, default=defaults.NEIGHBOURS, help="neighbour search")
+    p.add_argument(
+        "--neighbours",
+        choices=NEIGHBOUR_SEARCHES,
+        default=defaults.NEIGHBOURS,
+        help=f"neighbour search (default {defaults.NEIGHBOURS}, as the node)",
+    )
     p.add_argument(
         "--viewpoint",
         type=float,
@@ -120,16 +141,21 @@ def convert(args: argparse.Namespace, estimator=None) -> tuple[int, str]:
 
 
 def check_options(args: argparse.Namespace) -> None:
-    checks.positive("radius", args.radius)
-    checks.at_least("k", args.k, 3)
-    checks.at_least("batch-size", args.batch_size, 1)
-    if not np.isfinite(args.viewpoint).all():
-        raise UsageError(f"--viewpoint must be three finite numbers, got {args.viewpoint}")
-    checks.range_scale(args.range_scale)
-    checks.hybrid_options(args)
+    """The options of one bag's conversion (`bag` and `bags`), before any bag is opened; the estimator's by their
+    settings' rules, as the node checks its parameters."""
+    checks.check_settings(args)
+    checks.viewpoint(args.viewpoint)
     _non_negative("segment-seconds", args.segment_seconds)
     _check_part(args)
-    checks.device(args.device)
+
+
+def message_settings(args: argparse.Namespace) -> MessageSettings:
+    """What every cloud is answered with: the node's per-cloud step (`answer_message`) under the options."""
+    from ..pipeline.messages import MessageSettings
+
+    return MessageSettings(
+        checks.estimator_settings(args, args.radius), not args.no_orient, tuple(args.viewpoint), not args.keep_zeros
+    )
 
 
 def check_paths(source_path: Path, target_path: Path, names: tuple[str, str] = ("IN", "OUT")) -> None:
@@ -195,10 +221,11 @@ def _convert(args: argparse.Namespace, bag, estimator=None) -> tuple[int, str]:
         overwrite=args.overwrite, resume=args.resume, segment_seconds=args.segment_seconds,
     ) as writer:  # fmt: skip
         estimator = estimator or checks.make_estimator(args, args.radius)
+        answering = _Answering(estimator, message_settings(args), (output_topic, CLOUD_TYPE))
         _note_undescribed(copied)  # only now: a run refused before any work says so in one line
         stream = bag.messages(None if copied else {args.topic}, start, end)
         total = _clouds_expected(args, bag)
-        clouds, skipped = _estimate_all(args, stream, writer, estimator, (output_topic, CLOUD_TYPE), total)
+        clouds, skipped = _estimate_all(args, stream, writer, answering, total)
         _merge(writer)
     resumed = f", resumed at input message {writer.resumed_at}" if writer.resumed_at else ""
     return clouds, (
@@ -227,7 +254,24 @@ def _clouds_expected(args: argparse.Namespace, bag) -> int | None:
     return args.limit if everything is None else min(args.limit, everything)
 
 
-def _estimate_all(args, stream, writer, estimator, output_key: tuple[str, str], total: int | None) -> tuple[int, int]:
+@dataclass(frozen=True)
+class _Answering:
+    """How each cloud of IN is answered: the estimator, the run's settings snapshot, and the output's (topic, type)."""
+
+    estimator: NormalEstimator
+    settings: MessageSettings
+    output_key: tuple[str, str]
+
+    def __call__(self, message, stop: threading.Event) -> memoryview:
+        """The output message for one input cloud: the node's answer (`answer_message`), as a bag stores it."""
+        from ..io.bags import as_message, decode_cloud, encode_message
+        from ..pipeline.messages import answer_message
+
+        answer = answer_message(as_message(decode_cloud(message)), self.estimator, self.settings, stop)
+        return encode_message(answer.message)
+
+
+def _estimate_all(args, stream, writer, answering: _Answering, total: int | None) -> tuple[int, int]:
     """Write each input message's outputs, in order, from the writer's resume point, up to the --limit-th cloud;
     returns (clouds, skipped)."""
     from tqdm import tqdm
@@ -241,7 +285,7 @@ def _estimate_all(args, stream, writer, estimator, output_key: tuple[str, str], 
             is_cloud = message.topic == args.topic
             clouds += is_cloud
             if message.index >= writer.done:  # else it was written before the interruption
-                outputs, failed = _outputs(args, message, estimator, output_key, stop, bar.write)
+                outputs, failed = _outputs(args, message, answering, stop, bar.write)
                 skipped += failed
                 writer.write(message.index, outputs)
             bar.update(is_cloud)
@@ -253,7 +297,7 @@ def _estimate_all(args, stream, writer, estimator, output_key: tuple[str, str], 
 
 
 def _outputs(
-    args: argparse.Namespace, message, estimator, output_key: tuple[str, str], stop: threading.Event, warn: Callable
+    args: argparse.Namespace, message, answering: _Answering, stop: threading.Event, warn: Callable
 ) -> tuple[list, bool]:
     """What one input message puts in OUT (itself unless --no-copy; for a cloud, the cloud with normals), and whether
     it was a cloud that had to be skipped (`warn` gets the line saying why)."""
@@ -261,7 +305,7 @@ def _outputs(
     if message.topic != args.topic:
         return outputs, False
     try:
-        outputs.append((output_key, message.timestamp, _with_normals(estimator, message, args, stop)))
+        outputs.append((answering.output_key, message.timestamp, answering(message, stop)))
     except (CloudFormatError, EstimatorError) as error:
         warn(f"triplet-normal: warning: skipped the cloud at {message.timestamp} ns: {error}", file=sys.stderr)
         return outputs, True
@@ -289,32 +333,6 @@ def _ctrl_c() -> Iterator[threading.Event]:
         yield stop
     finally:
         signal.signal(signal.SIGINT, previous)
-
-
-def _with_normals(estimator, message, args: argparse.Namespace, stop: threading.Event) -> memoryview:
-    """The output message for one input cloud, as the node builds it (empty clouds stay empty, with the fields)."""
-    from ..io.bags import decode_cloud, encode_cloud
-    from ..io.pointcloud2 import read_xyz
-
-    cloud = decode_cloud(message)
-    if cloud.height * cloud.width == 0:
-        return encode_cloud(cloud, None, None)
-    points = read_xyz(cloud)
-    normals, curvature = _estimate(estimator, points, (cloud.height, cloud.width), args, stop)
-    return encode_cloud(cloud, normals, curvature)
-
-
-def _estimate(
-    estimator, points: np.ndarray, shape: tuple[int, int], args: argparse.Namespace, stop: threading.Event
-) -> tuple[np.ndarray, np.ndarray]:
-    """Normals and curvature for every point by the node's per-cloud step."""
-    from ..core.cloud import estimate_cloud
-
-    viewpoint = None if args.no_orient else args.viewpoint
-    result = estimate_cloud(
-        estimator, points, shape=shape, viewpoint=viewpoint, cancel=stop, zeros_are_no_returns=not args.keep_zeros
-    )
-    return result.normals, result.curvature
 
 
 def _merge(writer) -> None:

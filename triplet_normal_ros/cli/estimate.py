@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.conventions import METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K, RADIUS_FRACTION
+from ..core import defaults
+from ..core.conventions import METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
 from ..errors import UsageError
 from . import args as checks
 
@@ -33,7 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--radius-rel",
         type=float,
         metavar="F",
-        help=f"radius as a fraction of the bbox diagonal (default {RADIUS_FRACTION})",
+        help=f"radius as a fraction of the bbox diagonal (default {defaults.ESTIMATE_RADIUS_FRACTION})",
     )
     p.add_argument(
         "--k",
@@ -44,18 +45,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             f"(default {PCA_DEFAULT_K})"
         ),
     )
-    p.add_argument("--checkpoint", metavar="C", help="safetensors checkpoint (default: the one shipped in the package)")
+    p.add_argument("--checkpoint", metavar="C", help=f"safetensors path or shipped name ({checks.SHIPPED_HELP})")
     p.add_argument(
         "--method",
         choices=METHODS,
-        default="learned",
-        help="learned (default), pca, or hybrid (PCA, with the network where the surface is not flat)",
+        default=defaults.ESTIMATE_METHOD,
+        help=f"learned, pca, or hybrid (PCA, with the network where the surface is not flat); default "
+        f"{defaults.ESTIMATE_METHOD}",
     )
-    p.add_argument("--device", default="auto", metavar="D", help="auto, cpu, cuda or cuda:N (default auto)")
+    p.add_argument(
+        "--device", default=defaults.DEVICE, metavar="D", help=f"auto, cpu, cuda or cuda:N (default {defaults.DEVICE})"
+    )
     p.add_argument(
         "--viewpoint", type=float, nargs=3, metavar=("X", "Y", "Z"), help="orient: flip normals to face this point"
     )
-    p.add_argument("--batch-size", type=int, metavar="B", help="patches per network call (default: the estimator's)")
+    p.add_argument(
+        "--batch-size",
+        type=int,
+        default=defaults.BATCH_SIZE,
+        metavar="B",
+        help=f"patches per network call (default {defaults.BATCH_SIZE})",
+    )
     checks.add_hybrid_options(p)
     checks.add_sensor_options(p)
     where = p.add_mutually_exclusive_group()
@@ -74,7 +84,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--neighbours",
         choices=NEIGHBOUR_SEARCHES,
-        default="auto",
+        default=defaults.NEIGHBOURS,
         help="kdtree, grid (organized clouds: the pixel grid), voxel (the KD-tree's neighbours from cell lists on the "
         "device), window (organized clouds: pca and hybrid's survey from integral images), or auto (default: window "
         "for hybrid and whole-ball pca on organized clouds; else on a GPU grid for organized clouds, else voxel; on a "
@@ -93,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     cloud = read_cloud(args.input)
     query = read_indices(args.indices, len(cloud.points)) if args.indices else np.arange(len(cloud.points))
     points = cloud.points if args.keep_zeros else without_no_returns(cloud.points)
-    radius = args.radius or (args.radius_rel or RADIUS_FRACTION) * bbox_diagonal(points)
+    radius = args.radius or (args.radius_rel or defaults.ESTIMATE_RADIUS_FRACTION) * bbox_diagonal(points)
     if not radius > 0:
         raise UsageError(f"{args.input}: the cloud has zero extent, so --radius-rel gives radius 0; pass --radius")
     estimator = checks.make_estimator(args, radius)
@@ -180,15 +190,10 @@ def estimate_with_progress(
 
 
 def _check(args: argparse.Namespace) -> None:
-    checks.positive("radius", args.radius)
+    """The options, before the cloud is read; the estimator's by their settings' rules (as the node's parameters)."""
+    checks.check_settings(args)
     checks.positive("radius-rel", args.radius_rel)
-    checks.at_least("k", args.k, 3)
-    checks.at_least("batch-size", args.batch_size, 1)
-    if args.viewpoint is not None and not np.isfinite(args.viewpoint).all():
-        raise UsageError(f"--viewpoint must be three finite numbers, got {args.viewpoint}")
-    checks.hybrid_options(args)
-    checks.range_scale(args.range_scale)
-    checks.device(args.device)
+    checks.viewpoint(args.viewpoint)
     checks.at_least("tile-points", args.tile_points, 1)
     if args.tile_points is not None and args.workers is None and args.address is None:
         raise UsageError("--tile-points cuts the cloud for --workers or --address; give one of them")

@@ -3,6 +3,7 @@
 import argparse
 from pathlib import Path
 
+from ..core import defaults
 from ..core.conventions import RADIUS_FRACTION
 from ..errors import UsageError
 from . import args as checks
@@ -23,7 +24,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--checkpoint", metavar="C", default="default", help="checkpoint to evaluate (default: the shipped 'default')"
     )
-    p.add_argument("--device", default="auto", metavar="D", help="auto, cpu, cuda or cuda:N (default auto)")
+    p.add_argument(
+        "--device", default=defaults.DEVICE, metavar="D", help=f"auto, cpu, cuda or cuda:N (default {defaults.DEVICE})"
+    )
     p.add_argument("--points-per-cloud", type=int, default=5000, metavar="N", help="query points per cloud (5000)")
     p.add_argument(
         "--pcpnet-dir",

@@ -5,6 +5,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+from ..core import defaults
 from ..errors import TrainingError, UsageError
 from . import args as checks
 
@@ -24,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--run-dir", type=Path, default=Path("out/train"), help="state, history and curves")
     parser.add_argument("--resume", action="store_true", help="continue from run-dir/state.pt")
-    parser.add_argument("--device", default="auto")
+    parser.add_argument("--device", default=defaults.DEVICE)
     parser.add_argument("--encoder-from", type=Path, help="skip phase (a): reuse this checkpoint's encoder")
     parser.add_argument("--no-triplet", action="store_true", help="ablation: train encoder+regressor directly")
     parser.add_argument("--shapes", nargs="+", help="train on these shapes only (smoke runs)")

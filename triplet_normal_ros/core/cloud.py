@@ -1,9 +1,10 @@
 """The per-cloud step: one whole cloud in, one normal and curvature per point out, oriented.
 
-The node and `triplet-normal bag` call `estimate_cloud`, so a cloud gets the same answer from each: which points
-count (no-return zeros, a validity mask), the empty and all-hole shortcuts, the estimate itself, and the viewpoint
-flip live here once. `triplet-normal estimate` (query subsets, tiles, files that are not sensor frames) takes the
-no-return rule from here too (`without_no_returns`).
+The node and `triplet-normal bag` call `estimate_cloud` (through `pipeline.messages.answer_message`, which decodes
+and encodes their messages), so a cloud gets the same answer from each: which points count (no-return zeros, a
+validity mask), the empty and all-hole shortcuts, the estimate itself, and the viewpoint flip live here once.
+`triplet-normal estimate` (query subsets, tiles, files that are not sensor frames) takes the no-return rule from here
+too (`without_no_returns`).
 """
 
 from __future__ import annotations
@@ -15,8 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import EstimatorError
+from . import defaults
 from .estimator import NormalEstimator
 from .orientation import orient_towards_viewpoint
+from .settings import Settings
 
 
 @dataclass(frozen=True)
@@ -38,9 +41,10 @@ def estimate_cloud(
     *,
     shape: tuple[int, int] | None = None,
     valid: np.ndarray | None = None,
-    viewpoint: Sequence[float] | None = (0.0, 0.0, 0.0),
+    viewpoint: Sequence[float] | None = defaults.VIEWPOINT,
     cancel: threading.Event | None = None,
-    zeros_are_no_returns: bool = True,
+    zeros_are_no_returns: bool = defaults.ZEROS_ARE_NO_RETURNS,
+    settings: Settings | None = None,
 ) -> CloudNormals:
     """Normals and curvature for every point of `points` (N, 3); NaN rows where no normal can be trusted.
 
@@ -50,7 +54,8 @@ def estimate_cloud(
     (0, 0, 0) likewise: LiDAR drivers (Ouster, Velodyne, Hesai) store a pixel without a return there in organized
     clouds, and a sensor never measures its own origin. `viewpoint` is where normals face (PCL's
     flipNormalTowardsViewpoint); None leaves the signs as estimated. A set `cancel` stops between batches with
-    `EstimationCancelled`.
+    `EstimationCancelled`. `settings` is this cloud's snapshot of the estimator's settings (`NormalEstimator.estimate`),
+    so a caller whose settings change between clouds never edits the shared estimator.
     """
     points = np.asarray(points)
     if valid is not None:
@@ -60,7 +65,7 @@ def estimate_cloud(
         points = without_no_returns(points)
     if len(points) == 0 or not np.isfinite(points).all(axis=1).any():
         return _unknown(len(points))
-    normals, curvature = estimator.estimate(points, cancel=cancel, shape=shape)
+    normals, curvature = estimator.estimate(points, cancel=cancel, shape=shape, settings=settings)
     if viewpoint is not None:
         normals = orient_towards_viewpoint(points, normals, viewpoint)
     return CloudNormals(normals, curvature)

@@ -5,7 +5,7 @@ config/ are checked against them (the LiDAR preset's values are `LIDAR`).
 Pure Python (no torch): the CLI reads them to build `--help`.
 """
 
-from .conventions import DEPTH_RADIUS, HYBRID_BEND, HYBRID_GATE, LIDAR_RADIUS, LIDAR_RANGE_SCALE
+from .conventions import DEPTH_RADIUS, HYBRID_BEND, HYBRID_GATE, LIDAR_RADIUS, LIDAR_RANGE_SCALE, RADIUS_FRACTION
 
 #: The estimator the node runs unless told otherwise: PCA everywhere, the network near edges and folds.
 METHOD = "hybrid"
@@ -35,8 +35,17 @@ ZEROS_ARE_NO_RETURNS = True
 #: Normals face the viewpoint (PCL's flipNormalTowardsViewpoint); the origin of the cloud's frame is the sensor.
 ORIENT = True
 VIEWPOINT = (0.0, 0.0, 0.0)
+#: Seconds between the node's statistics lines (and its /diagnostics status).
+STATS_PERIOD = 5.0
 #: The settings config/lidar.yaml sets on top of these (a spinning LiDAR: a wider ball that grows with range).
 LIDAR = {"radius": LIDAR_RADIUS, "range_scale": LIDAR_RANGE_SCALE}
+
+#: `triplet-normal estimate` answers cloud files (the paper's benchmark clouds, scans in any units) with the network
+#: everywhere; sensor streams (the node, `bag`, `bags`) take METHOD.
+ESTIMATE_METHOD = "learned"
+#: ... and, without --radius, a ball of this fraction of the cloud's bounding-box diagonal: the training radius, since
+#: a file's units are unknown.
+ESTIMATE_RADIUS_FRACTION = RADIUS_FRACTION
 
 
 def shipped_checkpoint(device_type: str) -> str:

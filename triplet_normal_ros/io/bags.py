@@ -1,8 +1,9 @@
 """Reading rosbag2 bags (sqlite3 and MCAP) and converting their PointCloud2 messages, with `rosbags`: no ROS needed.
 
 `rosbags` deserialises into its own dataclasses, whose PointCloud2 has the field names of ``sensor_msgs``, so
-:func:`..pointcloud2.read_xyz` decodes them as they are and :func:`..pointcloud2.with_normals` builds the output
-layout; only the outer message object is swapped, so the bag command and the node write the same bytes. Every
+:func:`..pointcloud2.read_xyz` decodes them as they are; under a sensor_msgs header (:func:`as_message`) one reads
+as the node's input everywhere, and the answer, a sensor_msgs PointCloud2, goes back into CDR by
+:func:`encode_message`. So the bag command and the node answer through one function and write the same bytes. Every
 failure to open or read a bag is one :class:`BagError` line naming the file.
 
 Topics are copied as raw bytes, which needs no message definition: a topic whose type the bag does not describe (a
@@ -21,6 +22,7 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from rosbags.interfaces import Connection
 from rosbags.rosbag2 import Reader, ReaderError
 from rosbags.rosbag2.storage_mcap import McapReader
@@ -39,8 +41,10 @@ __all__ = [
     "BagMessage",
     "InputBag",
     "TopicSpec",
+    "as_message",
     "decode_cloud",
     "encode_cloud",
+    "encode_message",
 ]
 
 CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
@@ -51,7 +55,7 @@ TYPESTORE = get_typestore(Stores.ROS2_KILTED)
 #: The type hash written for a topic whose bag records none and whose type is not standard: rosbags' writer requires
 #: one, and all zeros cannot be mistaken for the hash of a real type.
 NO_TYPE_HASH = "RIHS01_" + "0" * 64
-_POINT_FIELD = "sensor_msgs/msg/PointField"
+_POINT_FIELD, _HEADER, _TIME = "sensor_msgs/msg/PointField", "std_msgs/msg/Header", "builtin_interfaces/msg/Time"
 #: What a damaged storage file raises from inside rosbags while messages are read.
 _READ_ERRORS = (ReaderError, SerdeError, sqlite3.Error, struct.error, EOFError, KeyError, IndexError, ValueError)
 
@@ -204,16 +208,23 @@ def decode_cloud(message: BagMessage) -> Any:
         raise CloudFormatError(f"not a CDR PointCloud2: {error}") from None
 
 
-def encode_cloud(cloud: Any, normals: np.ndarray | None, curvature: np.ndarray | None) -> memoryview:
-    """CDR bytes of `cloud` plus normal_x/y/z and curvature, laid out by `with_normals` (the node's output).
+def as_message(cloud: Any) -> Any:
+    """`cloud` (a bag's PointCloud2) under a sensor_msgs Header with the same stamp and frame, so that it reads as the
+    node's input everywhere: `with_normals` (and so `pipeline.messages.answer_message`) copies that header into its
+    sensor_msgs answer."""
+    stamp = Time(sec=cloud.header.stamp.sec, nanosec=cloud.header.stamp.nanosec)
+    return dataclasses.replace(cloud, header=Header(stamp=stamp, frame_id=cloud.header.frame_id))
 
-    ``normals is None`` writes the zero-point cloud of `empty_with_normals`. The header (stamp, frame) is `cloud`'s.
-    """
-    shell = dataclasses.replace(cloud, header=Header())  # with_normals copies a sensor_msgs Header; ours goes back in
-    out = empty_with_normals(shell) if normals is None else with_normals(shell, normals, curvature)
+
+def encode_message(out: Any) -> memoryview:
+    """CDR bytes of a sensor_msgs PointCloud2 (an answer, laid out by `with_normals`), header included."""
+    header = TYPESTORE.types[_HEADER](
+        stamp=TYPESTORE.types[_TIME](sec=out.header.stamp.sec, nanosec=out.header.stamp.nanosec),
+        frame_id=out.header.frame_id,
+    )
     point_field = TYPESTORE.types[_POINT_FIELD]
     message = TYPESTORE.types[CLOUD_TYPE](
-        header=cloud.header,
+        header=header,
         height=out.height,
         width=out.width,
         fields=[point_field(name=f.name, offset=f.offset, datatype=f.datatype, count=f.count) for f in out.fields],
@@ -224,3 +235,13 @@ def encode_cloud(cloud: Any, normals: np.ndarray | None, curvature: np.ndarray |
         is_dense=out.is_dense,
     )
     return TYPESTORE.serialize_cdr(message, CLOUD_TYPE)
+
+
+def encode_cloud(cloud: Any, normals: np.ndarray | None, curvature: np.ndarray | None) -> memoryview:
+    """CDR bytes of `cloud` plus normal_x/y/z and curvature, laid out by `with_normals` (the node's output).
+
+    ``normals is None`` writes the zero-point cloud of `empty_with_normals`. The header (stamp, frame) is `cloud`'s.
+    """
+    shell = as_message(cloud)
+    out = empty_with_normals(shell) if normals is None else with_normals(shell, normals, curvature)
+    return encode_message(out)

@@ -15,7 +15,6 @@ import threading
 import time
 from typing import Any, NoReturn
 
-import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
@@ -31,10 +30,9 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import PointCloud2
 
 from ..core import throughput
-from ..core.cloud import estimate_cloud
 from ..core.estimator import NormalEstimator
 from ..errors import CheckpointError, CloudFormatError, EstimationCancelled, EstimatorError
-from ..io.pointcloud2 import empty_with_normals, read_xyz, with_normals
+from ..pipeline.messages import answer_message
 from . import diagnostics
 from .health import assess, settings_values
 from .mailbox import Mailbox
@@ -245,35 +243,17 @@ class TripletNormalNode(Node):
         self._mailbox.put(msg)
 
     def _process(self, msg: PointCloud2) -> None:
+        """Answer one cloud with the snapshot in force when it is taken (`answer_message`), publish, time it."""
         self._stats.start()
         start = time.perf_counter()
         estimator, settings = self._active
-        if msg.height * msg.width == 0:
-            out = empty_with_normals(msg)
-        else:
-            points = read_xyz(msg)
-            normals, curvature = self._estimate(estimator, settings, points, (msg.height, msg.width))
-            out = with_normals(msg, normals, curvature)
-        self._publisher.publish(out)
-        self._stats.record((time.perf_counter() - start) * 1e3)
-
-    def _estimate(
-        self, estimator: NormalEstimator, s: NodeSettings, points: np.ndarray, shape: tuple[int, int] | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Normals and curvature for every point, by the shared per-cloud step with this snapshot's settings."""
-        estimator.radius, estimator.k, estimator.batch_size = s.radius, _k(estimator, s), s.batch_size
-        estimator.gate, estimator.bend, estimator.neighbours = s.gate, s.bend, s.neighbours
-        estimator.range_scale = s.range_scale
-        viewpoint = s.viewpoint if s.orient else None
-        result = estimate_cloud(
-            estimator, points, shape=shape, viewpoint=viewpoint, cancel=self._cancel,
-            zeros_are_no_returns=s.zeros_are_no_returns,
-        )  # fmt: skip
-        if result.known == 0 and not np.isfinite(points).all(axis=1).any():
+        answer = answer_message(msg, estimator, settings.message_settings(), self._cancel)
+        if answer.points and not answer.finite:
             self.get_logger().warning(
                 "cloud has no finite points; publishing NaN normals", throttle_duration_sec=THROTTLE_S
             )
-        return result.normals, result.curvature
+        self._publisher.publish(answer.message)
+        self._stats.record((time.perf_counter() - start) * 1e3)
 
     def _report_stats(self) -> None:
         """Close the statistics window: log its line and publish its health on /diagnostics."""

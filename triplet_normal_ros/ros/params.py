@@ -1,25 +1,43 @@
 """The node's parameters as plain data plus their validation, so both are testable without rclpy.
 
-The node turns each :class:`ParamSpec` into a ``ParameterDescriptor`` (type, range, description) and calls
-:func:`validate` from its on-set callback; the reason string goes back to whoever tried to set the parameter.
+The node turns each :class:`ParamSpec` into a ``ParameterDescriptor`` (type, constraints, description) and calls
+:func:`validate` from its on-set callback; the reason string goes back to whoever tried to set the parameter. A
+parameter that is an estimator setting is judged by that setting's one rule (`core.settings.reason`), the same rule
+`triplet-normal estimate`, `bag` and `bags` and the estimator itself apply, so the descriptors carry no ranges of
+their own: rclpy would check a range first and answer in its own words. The viewpoint's rule is the message step's
+(`pipeline.messages.viewpoint_reason`), which `bag` shares; the rest are the node's alone.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 from ..core import defaults
-from ..core.conventions import METHODS, MIN_NEIGHBOURS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
-from ..core.device import device_type, validate_device_name
+from ..core.conventions import PCA_DEFAULT_K
+from ..core.device import device_type
+from ..core.plan import checkpoint_for
+from ..core.settings import Settings, reason
+from ..pipeline.messages import MessageSettings, viewpoint_reason
 
 #: Parameters whose change builds a new estimator (loading the checkpoint); the rest apply to the next cloud in place.
 RELOAD_PARAMS = frozenset({"method", "checkpoint", "device"})
 
 #: Value of ``k`` that means "the method's default": the checkpoint's k for learned, PCA_DEFAULT_K for pca.
 K_METHOD_DEFAULT = defaults.K
+#: The parameters that are estimator settings, each judged by its rule in `core.settings`.
+SETTING_PARAMS = frozenset(f.name for f in fields(Settings))
+#: Any value no rule accepts: asking a rule about it yields the words of what it does accept.
+_NOTHING = object()
+
+
+def accepted(name: str) -> str:
+    """What parameter `name` accepts, in its rule's own words ('a finite number > 0 (metres)'): the descriptor's
+    constraints, which can then never disagree with the rule."""
+    why = viewpoint_reason(_NOTHING) if name == "viewpoint" else reason(name, _NOTHING)
+    return (why or "").partition(" must be ")[2].rpartition(", got ")[0]
 
 
 @dataclass(frozen=True)
@@ -42,7 +60,7 @@ SPECS: tuple[ParamSpec, ...] = (
         defaults.METHOD,
         "Normal estimator: 'learned' (triplet network), 'pca', or 'hybrid' (PCA; the network where not flat).",
         None,
-        "learned | pca | hybrid",
+        accepted("method"),
     ),
     ParamSpec(
         "checkpoint",
@@ -50,6 +68,8 @@ SPECS: tuple[ParamSpec, ...] = (
         defaults.CHECKPOINT,
         "A .safetensors checkpoint for 'learned' and 'hybrid': a path, or a shipped name ('default', 'lite': 6.5x "
         "fewer FLOPs, k = 64); empty means the shipped one for the device: 'default' on a GPU, 'lite' on a CPU.",
+        None,
+        accepted("checkpoint"),
     ),
     ParamSpec(
         "device",
@@ -57,18 +77,25 @@ SPECS: tuple[ParamSpec, ...] = (
         defaults.DEVICE,
         "Torch device; 'auto' takes the GPU when torch sees one.",
         None,
-        "auto | cpu | cuda | cuda:N",
+        accepted("device"),
     ),
-    ParamSpec("batch_size", int, defaults.BATCH_SIZE, "Patches per forward pass of the learned method.", (1, 1 << 20)),
-    ParamSpec("radius", float, defaults.RADIUS, "Neighbourhood ball radius in metres (> 0).", (1e-4, 100.0)),
+    ParamSpec(
+        "batch_size",
+        int,
+        defaults.BATCH_SIZE,
+        "Patches per forward pass of the learned method.",
+        None,
+        accepted("batch_size"),
+    ),
+    ParamSpec("radius", float, defaults.RADIUS, "Neighbourhood ball radius in metres.", None, accepted("radius")),
     ParamSpec(
         "k",
         int,
         K_METHOD_DEFAULT,
         "learned: points per patch; pca: most neighbours per point (the nearest k inside the radius). "
         f"{K_METHOD_DEFAULT} means the method's default: the checkpoint's k for learned, {PCA_DEFAULT_K} for pca.",
-        (K_METHOD_DEFAULT, 100_000),
-        f"{K_METHOD_DEFAULT} or >= {MIN_NEIGHBOURS}",
+        None,
+        f"{K_METHOD_DEFAULT} (the method's default) or {accepted('k')}",
     ),
     ParamSpec(
         "gate",
@@ -76,7 +103,8 @@ SPECS: tuple[ParamSpec, ...] = (
         defaults.GATE,
         "hybrid: the network answers where a quadric explains the neighbourhood better than PCA's plane by more than "
         "this F statistic (about 1 on any flat surface); lower sends more points to the network.",
-        (0.0, 1e9),
+        None,
+        accepted("gate"),
     ),
     ParamSpec(
         "bend",
@@ -85,7 +113,8 @@ SPECS: tuple[ParamSpec, ...] = (
         "hybrid: ... and where that quadric departs from the plane by more than this RMS height, as a fraction of "
         "the ball's radius ('radius', grown by 'range_scale'; mild sensor waviness stays with PCA); 0 leaves the "
         "choice to 'gate' alone.",
-        (0.0, 1e9),
+        None,
+        accepted("bend"),
     ),
     ParamSpec(
         "neighbours",
@@ -97,7 +126,7 @@ SPECS: tuple[ParamSpec, ...] = (
         "takes 'window' for hybrid and whole-ball pca on organized clouds, else the grid (organized) or voxel on a GPU "
         "and the KD-tree on a CPU.",
         None,
-        " | ".join(NEIGHBOUR_SEARCHES),
+        accepted("neighbours"),
     ),
     ParamSpec(
         "range_scale",
@@ -105,8 +134,9 @@ SPECS: tuple[ParamSpec, ...] = (
         defaults.RANGE_SCALE,
         "The ball grows with range: a point's radius is max(radius, range_scale x its distance from the sensor); 0 "
         "keeps it fixed (depth cameras). A spinning LiDAR's rings part with range, and a fixed ball holds one ring "
-        "(a line: no normal) beyond a few metres; config/lidar.yaml sets 0.03.",
-        (0.0, 1.0),
+        f"(a line: no normal) beyond a few metres; config/lidar.yaml sets {defaults.LIDAR['range_scale']:g}.",
+        None,
+        accepted("range_scale"),
     ),
     ParamSpec(
         "zeros_are_no_returns",
@@ -122,9 +152,17 @@ SPECS: tuple[ParamSpec, ...] = (
         list(defaults.VIEWPOINT),
         "[x, y, z] in the cloud's frame that normals face when 'orient' is true; the origin is the depth sensor.",
         None,
-        "three finite floats",
+        accepted("viewpoint"),
     ),
-    ParamSpec("stats_period", float, 5.0, "Seconds between info-level processing statistics.", (0.1, 3600.0), "", True),
+    ParamSpec(
+        "stats_period",
+        float,
+        defaults.STATS_PERIOD,
+        "Seconds between info-level processing statistics.",
+        (0.1, 3600.0),
+        "",
+        True,
+    ),
 )
 
 SPEC_BY_NAME: dict[str, ParamSpec] = {s.name: s for s in SPECS}
@@ -150,23 +188,28 @@ class NodeSettings:
     stats_period: float = SPEC_BY_NAME["stats_period"].default
 
     def checkpoint_in_force(self) -> str:
-        """The checkpoint parameter, or for "" the shipped checkpoint for the device (`defaults.shipped_checkpoint`)."""
-        return self.checkpoint or defaults.shipped_checkpoint(device_type(self.device))
+        """The checkpoint the network methods load: the parameter, or for "" the shipped one for the device
+        (`plan.checkpoint_for`); '' for pca. Asks only for the device's type, so it names a GPU's checkpoint on a
+        machine without one too."""
+        chosen = Settings(method=self.method, checkpoint=self.checkpoint)
+        return checkpoint_for(chosen, device_type(self.device))
+
+    def estimator_settings(self) -> Settings:
+        """The estimator's settings snapshot: k 0 becomes None (the method's own), "" stays the device's checkpoint."""
+        return Settings(
+            method=self.method, radius=self.radius, k=None if self.k == K_METHOD_DEFAULT else self.k,
+            checkpoint=self.checkpoint, device=self.device, batch_size=self.batch_size, gate=self.gate,
+            bend=self.bend, neighbours=self.neighbours, range_scale=self.range_scale,
+        )  # fmt: skip
 
     def estimator_args(self) -> dict[str, Any]:
-        """Keyword arguments for ``NormalEstimator``; k=None lets the estimator take its method's default."""
-        return {
-            "method": self.method,
-            "radius": self.radius,
-            "k": self.k if self.k != K_METHOD_DEFAULT else None,
-            "checkpoint": self.checkpoint_in_force(),
-            "device": self.device,
-            "batch_size": self.batch_size,
-            "gate": self.gate,
-            "bend": self.bend,
-            "neighbours": self.neighbours,
-            "range_scale": self.range_scale,
-        }
+        """Keyword arguments for ``NormalEstimator``: the fields of `estimator_settings`."""
+        return asdict(self.estimator_settings())
+
+    def message_settings(self) -> MessageSettings:
+        """What one cloud is answered with (`pipeline.messages.answer_message`): the estimator's snapshot, the
+        orientation and the no-return rule."""
+        return MessageSettings(self.estimator_settings(), self.orient, self.viewpoint, self.zeros_are_no_returns)
 
 
 def _check_type(spec: ParamSpec, value: Any) -> str | None:
@@ -189,23 +232,19 @@ def _check_bounds(spec: ParamSpec, value: float) -> str | None:
 
 
 def _check_value(name: str, value: Any) -> str | None:
-    if name == "method" and value not in METHODS:
-        return f"method must be one of {', '.join(METHODS)}, got {value!r}"
-    if name == "device":
-        return validate_device_name(value)
-    if name == "neighbours" and value not in NEIGHBOUR_SEARCHES:
-        return f"neighbours must be one of {', '.join(NEIGHBOUR_SEARCHES)}, got {value!r}"
-    if name == "k" and value != K_METHOD_DEFAULT and value < MIN_NEIGHBOURS:
-        return f"k must be {K_METHOD_DEFAULT} (the method's default) or >= {MIN_NEIGHBOURS}, got {value!r}"
-    if name == "radius" and not value > 0:
-        return f"radius must be > 0 metres, got {value!r}"
-    if name == "viewpoint" and not _is_point(value):
-        return f"viewpoint must be three finite numbers [x, y, z], got {list(value)!r}"
+    if name == "k":
+        return _check_k(value)
+    if name in SETTING_PARAMS:
+        return reason(name, value)
+    if name == "viewpoint":
+        return viewpoint_reason(value)
     return None
 
 
-def _is_point(value: list) -> bool:
-    return len(value) == 3 and all(isinstance(v, int | float) and math.isfinite(v) for v in value)
+def _check_k(value: int) -> str | None:
+    """k's rule, with the node's 0 for "the method's default" (the estimator's None)."""
+    why = reason("k", None if value == K_METHOD_DEFAULT else value)
+    return f"{why} ({K_METHOD_DEFAULT} means the method's default)" if why else None
 
 
 def validate(name: str, value: Any) -> str | None:
@@ -224,9 +263,9 @@ def validate(name: str, value: Any) -> str | None:
 def validate_all(values: Mapping[str, Any]) -> str | None:
     """The first reason among ``values``, or None when all are acceptable."""
     for name, value in values.items():
-        reason = validate(name, value)
-        if reason:
-            return reason
+        why = validate(name, value)
+        if why:
+            return why
     return None
 
 
