@@ -6,16 +6,19 @@ plain data.
 """
 
 import tracemalloc
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from triplet_normal_ros.core.cloud import CloudNormals, estimate_cloud
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.io.cloud_files import write_normals
 from triplet_normal_ros.ros.params import SPECS, NodeSettings, apply
+from triplet_normal_ros.simulation.range_frame import RangeFrame
+from triplet_normal_ros.simulation.range_scans import depth_frames
 from triplet_normal_ros.training.dataset import LabelledCloud, build_dataset
 
 # --- training data -------------------------------------------------------------------------------------------------
@@ -70,6 +73,61 @@ def node_answer(
     return estimate_cloud(
         estimator, points, shape=shape, viewpoint=viewpoint, zeros_are_no_returns=settings.zeros_are_no_returns
     )
+
+
+# --- an independent reference --------------------------------------------------------------------------------------
+
+
+def ball_pca(
+    points: np.ndarray,
+    query: np.ndarray,
+    radius: float | np.ndarray,
+    k: int | None = None,
+    viewpoint: Sequence[float] = (0.0, 0.0, 0.0),
+) -> tuple[np.ndarray, np.ndarray]:
+    """Plain PCA, written here without the package: for each point `points[query]`, every finite point within `radius`
+    (a scalar, or one per query), or with `k` only the nearest `k` of them; their covariance, and its smallest
+    eigenvector (numpy's eigh) facing `viewpoint`; curvature l0 / (l0 + l1 + l2). Fewer than three points, or a
+    non-finite query, give NaN. No window, grid, gate or network: the textbook answer the node's paths approximate."""
+    points = np.asarray(points, dtype=np.float64)
+    finite = np.isfinite(points).all(axis=1)
+    inside = points[finite]
+    tree, centres = cKDTree(inside), np.nan_to_num(points[query])
+    radii = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(query),))
+    if k is None:
+        members = tree.query_ball_point(centres, radii)
+    else:
+        found = np.stack([tree.query(c, k=k, distance_upper_bound=r)[1] for c, r in zip(centres, radii, strict=True)])
+        members = [row[row < len(inside)] for row in found]
+    covariances = np.full((len(query), 3, 3), np.nan)
+    for row, (ids, ok) in enumerate(zip(members, finite[query], strict=True)):
+        if ok and len(ids) >= 3:
+            local = inside[ids] - inside[ids].mean(axis=0)
+            covariances[row] = local.T @ local / len(ids)
+    answered = np.isfinite(covariances).all(axis=(1, 2))
+    normals, curvature = np.full((len(query), 3), np.nan), np.full(len(query), np.nan)
+    values, vectors = np.linalg.eigh(covariances[answered])
+    normals[answered] = vectors[:, :, 0]
+    curvature[answered] = values[:, 0] / np.maximum(values.sum(axis=1), np.finfo(float).tiny)
+    away = np.einsum("ij,ij->i", normals, np.asarray(viewpoint) - points[query]) < 0
+    normals[away] *= -1
+    return normals, curvature
+
+
+#: Simulated depth frames (simulation.range_scans) the tests score answers on: drawn from a seed that none of eval (0),
+#: the gate study (100), training (200) or its validation (300) uses, so no test scores a frame a figure came from.
+FRAME_SEED = 500
+
+
+def held_out_depth_frame(index: int = 0) -> RangeFrame:
+    """Frame `index` of the FRAME_SEED depth frames: 640x480 Kinect-like, noisy points and exact normals (cached)."""
+    return depth_frames(index + 1, seed=FRAME_SEED)[index]
+
+
+def angles_deg(a: np.ndarray, b: np.ndarray, signed: bool = False) -> np.ndarray:
+    """Angles between corresponding rows of unit vectors, in degrees; up to sign unless `signed`."""
+    cosine = np.einsum("ij,ij->i", a, b)
+    return np.degrees(np.arccos(np.clip(cosine if signed else np.abs(cosine), -1.0, 1.0)))
 
 
 #: What parsing a small file or message that claims a huge size may allocate at most: far below what the claim needs.

@@ -2,9 +2,11 @@
 
 The node runs in its own process; this test process publishes real Kinect frames and receives the answers through
 its own rclpy context (``ProbeClient``: the demo's ``ReplayClient`` plus test-only calls). Full frames use ``pca``
-(fast); ``learned`` runs on a small crop. Answers are compared with the node's own per-cloud step run here
-(``helpers.node_answer``: the estimator built from the same parameters, device ``auto`` included, given the cloud's
-height and width), so on a GPU both sides take the same pixel-grid search.
+(fast); ``learned`` runs on a small crop of a simulated frame. Answers are checked against references the package
+does not compute: plain PCA of each point's k nearest within the radius, written in the test (``helpers.ball_pca``),
+and the exact normals of a simulated frame. The module's node runs on the CPU, where its pools are the k nearest
+points; a GPU would take pixel-grid pools, a uniform sample of the ball instead (test_default_method runs the node
+on whatever device the machine has).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import PACKAGE, NodeProcess, installed_env, running_node, site_packages
-from helpers import node_answer
+from helpers import angles_deg, ball_pca, held_out_depth_frame
 from probe_client import ProbeClient, cropped
 from scipy.spatial import cKDTree
 from sensor_msgs.msg import PointCloud2, PointField
@@ -36,7 +38,7 @@ pytestmark = pytest.mark.slow  # colcon builds and node processes
 
 IN, OUT = "/tn_test/points", "/tn_test/normals"
 RADIUS, K = 0.03, 24
-PCA_PARAMS = {"method": "pca", "radius": RADIUS, "k": K, "stats_period": 1.0}
+PCA_PARAMS = {"method": "pca", "radius": RADIUS, "k": K, "device": "cpu", "stats_period": 1.0}
 #: A hang guard only: a node that has not exited this long after SIGINT or SIGTERM is stuck, however slow the machine.
 EXIT_GUARD_S = 60.0
 TOTALS = re.compile(r"total: (\d+) arrived, (\d+) clouds, (\d+) dropped, (\d+) rejected")
@@ -78,6 +80,11 @@ def _totals(node: NodeProcess) -> tuple[int, ...] | None:
     """The running totals of the node's latest statistics line: arrived, processed, dropped, rejected."""
     found = TOTALS.findall(node.log)
     return tuple(map(int, found[-1])) if found else None
+
+
+def rms_deg(normals: np.ndarray, exact: np.ndarray) -> float:
+    """Root mean square of the angles between the rows, in degrees; a normal facing away counts as such."""
+    return float(np.sqrt(np.mean(angles_deg(normals, exact, signed=True) ** 2)))
 
 
 def pcl_invalid(points: np.ndarray, radius: float) -> np.ndarray:
@@ -143,32 +150,42 @@ def test_full_kinect_frame(client: ProbeClient, frame: Frame) -> None:
     assert (np.einsum("ij,ij->i", -points[ok], normals[ok]) >= 0).all(), "normals must face the sensor origin"
     assert curvature[ok].min() >= 0 and curvature[ok].max() <= 1 / 3 + 1e-6
 
-    # The node's per-cloud step with the parameters from its file, run here: the same rows unknown, the same answer.
-    ref = node_answer(PCA_PARAMS, points, (sent.height, sent.width))
-    np.testing.assert_array_equal(unknown, np.isnan(ref.normals).any(axis=1))
-    np.testing.assert_allclose(normals[ok], ref.normals[ok], atol=1e-4)
-    np.testing.assert_allclose(curvature[ok], ref.curvature[ok], atol=1e-5)
+    # Plain PCA of the K nearest within RADIUS (numpy and scipy, in the test) at 3000 answered pixels. Measured: a
+    # median angle of 0.0000 deg and 0.014 deg at the 95th percentile (float32 against float64); 1.1 % of the pixels
+    # beyond 0.1 deg, up to 6 deg (the quantized depth puts several points at the K-th distance, and a tie may be
+    # broken the other way); curvature within 2e-9 at the 95th percentile.
+    sample = np.sort(np.random.default_rng(0).choice(np.flatnonzero(ok), 3000, replace=False))
+    ref_normals, ref_curvature = ball_pca(points, sample, RADIUS, k=K)
+    assert np.isfinite(ref_normals).all(), "the node answered where fewer than 3 points are within the radius"
+    angles = angles_deg(normals[sample], ref_normals, signed=True)  # both face the sensor
+    assert np.median(angles) < 0.005 and np.quantile(angles, 0.95) < 0.05 and (angles > 0.1).mean() < 0.03
+    assert np.quantile(np.abs(curvature[sample] - ref_curvature), 0.95) < 1e-6
 
 
-def test_learned_method_on_a_small_crop(client: ProbeClient, frame: Frame) -> None:
+def test_learned_method_on_a_small_crop_is_near_its_exact_normals(client: ProbeClient) -> None:
+    """A 40x40 crop of a simulated depth frame (1600 points: the learned net is ~1-3k points/s on a CPU): floor about
+    1.3 m away, with the depth camera's noise. The network's answer against the exact normal."""
+    simulated = held_out_depth_frame()
+    rows, cols = slice(360, 400), slice(300, 340)
+    crop = Frame("simulated floor", simulated.points[rows, cols], np.zeros((40, 40), np.uint32))
+    exact = simulated.normals[rows, cols].reshape(-1, 3)
+    assert not simulated.near_edge[rows, cols].any(), "the crop must be one face"
     ok, reason = client.set_parameters({"method": "learned"})
     assert ok, reason
     try:
-        crop = cropped(frame, 180, 260, 40, 40)  # 1600 points: the learned net is ~1-3k points/s on this CPU
         sent = crop.to_cloud(client.header())
         out = client.request(sent, timeout=120)
         assert out is not None
-        points, normals = read_xyz(sent), normals_of(out)
-        ok_rows = ~np.isnan(normals).any(axis=1)
-        assert ok_rows.sum() > 1000
-        np.testing.assert_allclose(np.linalg.norm(normals[ok_rows], axis=1), 1.0, atol=1e-5)
-        assert (np.einsum("ij,ij->i", -points[ok_rows], normals[ok_rows]) >= 0).all()
-        ref = node_answer({**PCA_PARAMS, "method": "learned"}, points, crop.shape)
-        np.testing.assert_array_equal(ok_rows, np.isfinite(ref.normals).all(axis=1))
-        np.testing.assert_allclose(normals[ok_rows], ref.normals[ok_rows], atol=1e-4)
-        np.testing.assert_allclose(read_field(out, "curvature")[ok_rows], ref.curvature[ok_rows], atol=1e-5)
     finally:
         assert client.set_parameters({"method": "pca", "k": K})[0]
+    points, normals = read_xyz(sent), normals_of(out)
+    finite = np.isfinite(points).all(axis=1)
+    assert finite.sum() > 1500 and np.isfinite(normals[finite]).all(), "a return got no normal"
+    np.testing.assert_allclose(np.linalg.norm(normals[finite], axis=1), 1.0, atol=1e-5)
+    assert (np.einsum("ij,ij->i", -points[finite], normals[finite]) >= 0).all()
+    # Measured on a CPU (checkpoint lite, k = 24): 3.22 deg RMS. PCA of the 24 nearest points, a patch a few
+    # millimetres wide in this noise (the node still on pca), is off by 13.4 deg.
+    assert rms_deg(normals[finite], exact[finite]) < 3.7
 
 
 # -- parameters -----------------------------------------------------------------------------------------------------
