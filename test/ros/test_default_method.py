@@ -1,12 +1,11 @@
-"""The node as a user who changes nothing gets it: the default method (hybrid) on a full real 640x480 Kinect frame.
+"""The node as a user who changes nothing gets it: the default method (hybrid) on the machine's device (on a CPU the
+lite checkpoint and KD-tree pools, on a GPU the default checkpoint and pixel-grid pools), radius 0.05 m.
 
-The installed node runs with its default parameters except the radius (0.05 m, the demo's) and a short statistics
-period. Its answer is compared with the node's own per-cloud step run here (`helpers.node_answer`: the estimator
-built from the same parameters, device 'auto' included, given the frame's height and width), so a node that silently
-fell back to PCA, or sent everything through the network, fails here on any machine. Whether the frame's organization
-reaches the estimator is checked with the pixel-grid search asked for explicitly, which the estimator takes for an
-organized cloud on any device and which gives a measurably different answer from the KD-tree the unorganized cloud
-would get.
+The installed node runs with its default parameters and a short statistics period. Its answers are scored against
+the exact normals of simulated depth-camera views (a full 640x480 frame of a room, and a far wall), and against plain
+PCA of the same balls written in the test (`helpers.ball_pca`): references the package does not compute. The bounds
+sit near what was measured on both devices' plans, so a node that answered with PCA alone, or that lost the cloud's
+organization (and with it the window survey, which allows for the noise along the rays), fails here.
 """
 
 from __future__ import annotations
@@ -17,21 +16,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import running_node
-from helpers import node_answer, node_estimator
-from probe_client import ProbeClient, cropped
+from helpers import angles_deg, ball_pca, held_out_depth_frame
+from probe_client import ProbeClient
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field, read_xyz
-from triplet_normal_ros.ros.replay import load_frame
+from triplet_normal_ros.ros.replay import Frame
+from triplet_normal_ros.simulation.depth_camera import camera_rays, kinect_sigma
 
 pytestmark = pytest.mark.slow  # a colcon build, a node process, and hybrid on a full frame (tens of seconds)
 
 IN, OUT = "/tn_default/points", "/tn_default/normals"
 RADIUS = 0.05
 PARAMS = {"radius": RADIUS, "stats_period": 1.0}
-#: A hang guard only: about 25 s on a quiet 2-core machine, several times that while other jobs run.
+#: A hang guard only: about 15 s on a quiet 2-core machine, several times that while other jobs run.
 ANSWER_TIMEOUT_S = 600.0
-#: An answer "agrees" with the reference at a point when |cos| of the angle between them exceeds this.
-AGREE = 1 - 1e-4
 
 
 @pytest.fixture(scope="module")
@@ -48,13 +46,14 @@ def normals_of(msg) -> np.ndarray:
     return np.stack([read_field(msg, f) for f in NORMAL_FIELDS[:3]], axis=1)
 
 
-def agreement(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """|cos| of the angle between corresponding rows (1 where they agree up to sign)."""
-    return np.abs(np.einsum("ij,ij->i", a, b))
+def msae(normals: np.ndarray, exact: np.ndarray) -> float:
+    """Mean squared angle in rad², sign-invariant (eval's measure; orientation is checked on its own)."""
+    return float(np.mean(np.radians(angles_deg(normals, exact)) ** 2))
 
 
-def test_default_node_answers_a_full_real_frame_like_the_hybrid_estimator(client: ProbeClient) -> None:
-    frame = load_frame("table_scene_mug")
+def test_default_node_answers_a_full_depth_frame_near_its_exact_normals(client: ProbeClient) -> None:
+    simulated = held_out_depth_frame()
+    frame = Frame("simulated room", simulated.points, np.zeros(simulated.face.shape, np.uint32))
     sent = frame.to_cloud(client.header())
     out = client.request(sent, timeout=ANSWER_TIMEOUT_S)
     assert out is not None, "no answer to a full 640x480 frame from the default node"
@@ -62,50 +61,52 @@ def test_default_node_answers_a_full_real_frame_like_the_hybrid_estimator(client
 
     points = read_xyz(sent)
     normals, curvature = normals_of(out), read_field(out, "curvature")
-    answered = np.isfinite(normals).all(axis=1)
-    assert answered.sum() > 150_000
-
-    hybrid = node_estimator(PARAMS)
-    assert hybrid.method == "hybrid"
-    ref = node_answer(PARAMS, points, frame.shape, hybrid)
-    np.testing.assert_array_equal(answered, np.isfinite(ref.normals).all(axis=1))
-    cosine = agreement(normals[answered], ref.normals[answered])
-    assert np.quantile(cosine, 0.999) > AGREE and np.median(cosine) > 1 - 1e-5
+    valid, answered = simulated.valid.reshape(-1), np.isfinite(normals).all(axis=1)
+    assert not answered[~valid].any() and answered[valid].mean() > 0.999  # measured: every return
     assert (np.einsum("ij,ij->i", -points[answered], normals[answered]) >= 0).all(), "normals must face the sensor"
-    np.testing.assert_allclose(curvature[answered], ref.curvature[answered], atol=1e-5)
+    assert curvature[answered].min() >= 0 and curvature[answered].max() <= 1 / 3 + 1e-6
 
-    # A minority of a real frame goes through the network: neither all-PCA nor all-network ...
-    assert 0.01 < hybrid.last_run.network_fraction < 0.5
-    # ... and enough of it that a node fallen back to PCA (same parameters, method pca) would be told apart.
-    fallback = node_answer({**PARAMS, "method": "pca"}, points, frame.shape).normals
-    assert (agreement(normals[answered], fallback[answered]) < AGREE).mean() > 0.01
+    sample = np.sort(np.random.default_rng(0).choice(np.flatnonzero(valid), 5000, replace=False))
+    exact, edge = simulated.normals.reshape(-1, 3)[sample], simulated.near_edge.reshape(-1)[sample]
+    pca, _ = ball_pca(points, sample, RADIUS)
+    node = normals[sample]
+    # Measured (MSAE in rad², overall and at the 642 sampled pixels near an edge): the CPU's plan 0.00990 and 0.0753,
+    # the GPU's plan (run on a CPU) 0.00946 and 0.0719; plain PCA of the whole ball 0.0239 and 0.184, so the node
+    # scores 0.41 x and 0.41 x of it. A node answering with pca (its windows) scores 0.0343.
+    assert msae(node, exact) < 0.0115 and msae(node[edge], exact[edge]) < 0.087
+    assert msae(node, exact) < 0.48 * msae(pca, exact) and msae(node[edge], exact[edge]) < 0.48 * msae(
+        pca[edge], exact[edge]
+    )
+
+
+def far_wall(depth: float = 3.0, tilt_deg: float = 30.0, seed: int = 0) -> tuple[Frame, np.ndarray]:
+    """The middle 160x120 pixels of a Kinect-like camera's view of a flat wall `depth` m ahead, turned `tilt_deg` about
+    the vertical, with the camera's depth noise along each ray (simulation.depth_camera); and the wall's normal."""
+    rays = camera_rays().reshape(480, 640, 3)[180:300, 240:400].reshape(-1, 3)  # z = 1: a ray's parameter is depth
+    tilt = np.radians(tilt_deg)
+    normal = np.array([np.sin(tilt), 0.0, -np.cos(tilt)])  # facing the camera
+    depths = -depth / (rays @ normal)  # where each ray meets the plane normal . x = -depth
+    depths += np.random.default_rng(seed).normal(size=len(rays)) * kinect_sigma(depths)
+    points = (rays * depths[:, None]).astype(np.float32).reshape(120, 160, 3)
+    return Frame(f"wall {depth} m ahead", points, np.zeros((120, 160), np.uint32)), normal
 
 
 def test_the_clouds_organization_reaches_the_estimator(client: ProbeClient) -> None:
-    """With `neighbours: grid` the estimator walks the pixel grid of an organized cloud on any device, and only when it
-    is given the cloud's (height, width): a node that dropped them would answer with the KD-tree's neighbourhoods."""
-    assert client.set_parameters({"neighbours": "grid"})[0]
-    try:
-        crop = cropped(load_frame("table_scene_mug"), 180, 240, 120, 160)
-        sent = crop.to_cloud(client.header())
-        out = client.request(sent, timeout=ANSWER_TIMEOUT_S)
-        assert out is not None, "no answer to a 160x120 crop"
-        assert (out.height, out.width) == (120, 160)
-    finally:
-        assert client.set_parameters({"neighbours": "auto"})[0]
+    """A wall 3 m ahead, where the depth noise (2.8 cm) is half the radius: only the window survey, which reads the
+    cloud as the image it is, finds the wall. Measured: 3.72 deg RMS on both devices' plans; the same points without
+    their organization (pool PCA, as a node that dropped height and width would answer) 12.3 deg, plain PCA of the
+    ball 12.3 deg, pca's windows 15.2 deg."""
+    wall, normal = far_wall()
+    sent = wall.to_cloud(client.header())
+    out = client.request(sent, timeout=ANSWER_TIMEOUT_S)
+    assert out is not None, "no answer to the wall"
+    assert (out.height, out.width) == (120, 160)
     points, normals = read_xyz(sent), normals_of(out)
-    params = {**PARAMS, "neighbours": "grid"}
-    estimator = node_estimator(params)
-    organized = node_answer(params, points, crop.shape, estimator)
-    assert estimator.last_run.search == "grid", "the crop does not look like a range image: pick another"
-    unorganized = node_answer(params, points, None, estimator)
-    assert estimator.last_run.search == "kdtree"
-
-    answered = np.isfinite(normals).all(axis=1)
-    assert answered.sum() > 15_000
-    np.testing.assert_array_equal(answered, np.isfinite(organized.normals).all(axis=1))
-    cosine = agreement(normals[answered], organized.normals[answered])
-    assert np.quantile(cosine, 0.999) > AGREE and np.median(cosine) > 1 - 1e-5
-    # The check can fail: the unorganized answer differs from the organized one at a large share of the points.
-    both = answered & np.isfinite(unorganized.normals).all(axis=1)
-    assert (agreement(normals[both], unorganized.normals[both]) < AGREE).mean() > 0.2
+    assert np.isfinite(normals).all()
+    exact = np.broadcast_to(normal, normals.shape)
+    rms = float(np.sqrt(np.mean(angles_deg(normals, exact, signed=True) ** 2)))
+    ref, _ = ball_pca(points, np.arange(len(points)), RADIUS)
+    alone = ~np.isfinite(ref).all(axis=1)  # a point the noise put more than the radius off the wall: 1 of 19200
+    assert alone.sum() < 10
+    pca = float(np.sqrt(np.mean(angles_deg(ref[~alone], exact[~alone], signed=True) ** 2)))
+    assert rms < 4.3 and rms < 0.5 * pca, (rms, pca)
