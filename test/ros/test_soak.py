@@ -1,8 +1,8 @@
 """Soak under a flood: the installed node is sent clouds of 3k to 128k points at 20 Hz for 100 s (on the 2-core
 development machine several times faster than it processes them with PCA, on a faster one perhaps not). Whatever the
 machine's speed, it must answer every cloud it answers with that cloud's own header, size and data and with the
-normals its per-cloud step gives; account for every arrival as processed or dropped; answer the last cloud of the
-flood (the one-slot mailbox never drops the newest); keep its memory flat; and exit cleanly on SIGINT.
+normals plain PCA of the k nearest gives; account for every arrival as processed or dropped; answer the last cloud of
+the flood (the one-slot mailbox never drops the newest); keep its memory flat; and exit cleanly on SIGINT.
 
 docs/tools/soak.py runs the same flood (triplet_normal_ros/ros/overload.py) for longer and writes the figures to
 docs/RESULTS.md.
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 from conftest import NodeProcess, installed_env, params_yaml
-from helpers import node_answer
+from helpers import angles_deg, ball_pca
 from sensor_msgs.msg import PointCloud2
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field, read_xyz
@@ -159,13 +159,21 @@ def test_every_answer_is_the_right_one_for_the_cloud_it_answers(outcome: Outcome
     f, client = outcome.soak.flood, outcome.client
     assert not f.mismatches, "\n".join(f.mismatches[:20])  # header, size, layout, xyz; same normals every time
     assert len(f.answered_per_pool) >= 3, f"answers came for too few cloud sizes: {f.answered_per_pool}"
-    # The normals are the node's per-cloud step on that cloud (so all the answers to it are, by the check above).
+    # The normals are plain PCA of each point's k nearest within the radius (helpers.ball_pca, written in the test), at
+    # 1000 answered points of each cloud (so all the answers to it are, by the check above). Measured on every pool
+    # cloud: a median angle of at most 0.002 deg, 0.014 deg at the 95th percentile, at most 0.7 % of the points beyond
+    # 0.1 deg (ties at the k-th distance in the quantized depth); curvature within 2e-9 at the 95th percentile.
+    radius, k = NODE_PARAMS["radius"], NODE_PARAMS["k"]
     for index, (normals, curvature) in client.first_answers.items():
-        cloud = client.pool[index].cloud
-        expected = node_answer(NODE_PARAMS, read_xyz(cloud), (cloud.height, cloud.width))
-        label = client.pool[index].label
-        np.testing.assert_allclose(normals, expected.normals, atol=1e-4, err_msg=label)
-        np.testing.assert_allclose(curvature, expected.curvature, atol=1e-5, err_msg=label)
+        points, label = read_xyz(client.pool[index].cloud), client.pool[index].label
+        answered = np.flatnonzero(np.isfinite(normals).all(axis=1))
+        sample = np.sort(np.random.default_rng(index).choice(answered, min(1000, len(answered)), replace=False))
+        ref_normals, ref_curvature = ball_pca(points, sample, radius, k=k)
+        assert np.isfinite(ref_normals).all(), label
+        angles = angles_deg(normals[sample], ref_normals, signed=True)
+        assert np.median(angles) < 0.005 and np.quantile(angles, 0.95) < 0.05, label
+        assert (angles > 0.1).mean() < 0.03, label
+        assert np.quantile(np.abs(curvature[sample] - ref_curvature), 0.95) < 1e-6, label
 
 
 def test_memory_stays_flat(outcome: Outcome) -> None:
