@@ -1,6 +1,7 @@
 """The installed node, started with the installed config/lidar.yaml, answers a real Ouster scan (test/data) sent from
 this separate process: no-returns get NaN, at least 95 % of the real returns get a normal, the input's 48-byte points
-stay byte for byte, and the normals are the node's per-cloud step's with the preset's settings."""
+stay byte for byte, and the normals agree with plain PCA of the preset's balls (the radius, grown with range) written in
+the test, as closely as measured: the scan has no exact normals."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import PACKAGE
-from helpers import node_answer
+from helpers import angles_deg, ball_pca
 from probe_client import ProbeClient
 from real_recordings import OUSTER, OUSTER_TOPIC, clouds, preset
 
@@ -38,6 +39,17 @@ def test_the_lidar_preset_node_answers_a_real_ouster_scan(start_node, install_pr
     assert out.point_step == 64 and np.frombuffer(out.data, np.uint8).reshape(-1, 64)[:, :48].tobytes() == bytes(
         cloud.data
     )
-    expected = node_answer({**preset("lidar"), "device": "auto"}, xyz, (cloud.height, cloud.width))
-    np.testing.assert_allclose(normals, expected.normals, atol=1e-4)
-    np.testing.assert_allclose(curvature, expected.curvature, atol=1e-5)
+    answered = np.isfinite(normals).all(axis=1)
+    assert (np.einsum("ij,ij->i", -xyz[answered], normals[answered]) >= 0).all(), "normals must face the sensor"
+    # Plain PCA of each ball, max(radius, range_scale x range) as the preset sets it, at 3000 returns. The node's
+    # window survey reads the image, where a ball holds a few rings; the two agree to a median of 2.86 deg and 9.6 deg
+    # at the 75th percentile (measured on the CPU's and the GPU's plan alike, sign-invariant: on edge-on surfaces the
+    # orientation is a coin toss for both).
+    settings = preset("lidar")
+    sample = np.sort(np.random.default_rng(0).choice(np.flatnonzero(~no_return), 3000, replace=False))
+    radii = np.maximum(settings["radius"], settings["range_scale"] * np.linalg.norm(xyz[sample], axis=1))
+    ref, _ = ball_pca(xyz, sample, radii)
+    both = np.isfinite(ref).all(axis=1) & np.isfinite(normals[sample]).all(axis=1)
+    assert both.mean() > 0.95
+    angles = angles_deg(normals[sample][both], ref[both])
+    assert np.median(angles) < 3.5 and np.quantile(angles, 0.75) < 11.5, np.quantile(angles, [0.5, 0.75])
