@@ -10,7 +10,7 @@ STAMP := $(VENV)/.installed
 # setuptools<80: newer releases silently break `colcon build --symlink-install`.
 PINS := \
 	torch==2.13.0 \
-	numpy==2.4.6 scipy==1.17.1 \
+	numpy==2.4.6 scipy==1.17.1 numba==0.68.1 llvmlite==0.50.0 \
 	ros-rclpy==9.1.2 ros-sensor-msgs==5.5.1 ros-rmw-fastrtps-cpp==9.3.3 ros-diagnostic-msgs==5.5.1 \
 	colcon-core==0.21.3 colcon-ros==0.5.0 colcon-python-setup-py==0.2.9 colcon-bash==0.5.0 \
 	"setuptools<80" \

@@ -17,7 +17,7 @@ setup(
         (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml") + glob("config/*.xml"))),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
-    install_requires=["setuptools", "numpy", "scipy", "torch", "safetensors", "tqdm"],
+    install_requires=["setuptools", "numpy", "scipy", "numba", "torch", "safetensors", "tqdm"],
     extras_require={
         "test": ["pytest", "hypothesis"],
         "train": ["trimesh", "manifold3d", "rtree", "tqdm", "matplotlib"],

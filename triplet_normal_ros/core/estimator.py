@@ -175,7 +175,7 @@ class NormalEstimator:
         """The window survey of an organized range image: window PCA (pca), or hybrid's survey and gate."""
         stage = "pca" if plan.kernel == "pca" else "survey"
         with call.timed(stage):
-            image = MomentImage(cloud, shape, pitch)
+            image = MomentImage(cloud, shape, pitch, compiled=plan.engine == "compiled")
         if plan.kernel == "pca":
             with call.timed(stage):
                 return _window_pca(call, image, query, progress)

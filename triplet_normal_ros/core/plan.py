@@ -39,6 +39,7 @@ class Plan:
     - `search`: the pool search for the points that need pools: 'kdtree', 'grid', 'voxel', or 'none' (window pca
       needs no pool).
     - `checkpoint`: the network's checkpoint (a shipped name or a path), '' for pca.
+    - `engine`: what computes the windows: 'compiled' (`fused.py`, on a CPU) or 'torch' (on a GPU).
     - `scan_lines`: whether the cloud's image rows and columns are a sensor's scan lines, so that a neighbourhood on
       one of them is one scan line (a line: no normal, whatever its noise says).
     - `note`: why an organized cloud's grid was not trusted ('' when it was), for a log line.
@@ -48,6 +49,7 @@ class Plan:
     survey: str
     search: str
     checkpoint: str
+    engine: str = "torch"
     scan_lines: bool = False
     note: str = ""
 
@@ -64,6 +66,8 @@ class Plan:
     def steps(self) -> str:
         """The path in words, e.g. 'integral-image windows, KD-tree pools, checkpoint lite'."""
         parts = [_SURVEY_WORDS[self.survey]] if self.survey != "none" else []
+        if self.engine == "compiled":
+            parts[0] += " (compiled)"
         if self.search != "none":
             parts.append(_SEARCH_WORDS[self.search])
         if self.checkpoint:
@@ -92,7 +96,8 @@ def make_plan(settings: Settings, device_type: str, organized: bool, range_image
     window = kernel != "learned" and grid and wants_window
     survey = "window" if window else ("none" if kernel == "learned" else "pool")
     search = "none" if window and kernel == "pca" else _pool_search(settings.neighbours, device_type, organized, grid)
-    return Plan(kernel, survey, search, checkpoint_for(settings, device_type), scan_lines=grid)
+    engine = "compiled" if window and device_type == "cpu" else "torch"
+    return Plan(kernel, survey, search, checkpoint_for(settings, device_type), engine=engine, scan_lines=grid)
 
 
 def _pool_search(neighbours: str, device_type: str, organized: bool, grid: bool) -> str:

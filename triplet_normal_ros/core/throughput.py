@@ -34,6 +34,9 @@ class Throughput:
     network_share: float
     #: The path the probe took: an organized camera frame's (`plan.Plan`).
     plan: Plan
+    #: The first (warm-up) call's seconds: it compiles the CPU's window kernels when their cache is cold
+    #: (`fused.py`), so the first cloud does not.
+    warm_up_s: float = 0.0
 
     @property
     def search(self) -> str:
@@ -42,21 +45,24 @@ class Throughput:
     def describe(self, device: str) -> str:
         frame = FRAME_POINTS / self.points_per_second
         share = f", {self.network_share:.0%} of probe points through the network" if self.network_share else ""
+        warm = f"; warm-up {self.warm_up_s:.1f} s (kernels compiled or loaded)" if self.warm_up_s >= 1 else ""
         return (
             f"expected throughput on {device}: about {self.points_per_second:,.0f} points/s "
-            f"(~{frame:.1f} s for a full 640x480 organized frame; {self.plan.describe()}{share})"
+            f"(~{frame:.1f} s for a full 640x480 organized frame; {self.plan.describe()}{share}){warm}"
         )
 
 
 def measure(estimator: NormalEstimator, seed: int = 0) -> Throughput:
     """Points per second of `estimator` on the probe cloud (its settings unchanged)."""
     cloud = probe_cloud(estimator.radius, seed)
-    estimator.estimate(cloud, shape=PROBE_SHAPE)  # warm-up: first-call allocations and thread-pool start
+    start = time.perf_counter()
+    estimator.estimate(cloud, shape=PROBE_SHAPE)  # warm-up: first-call allocations, thread pools, compiled kernels
+    warm_up = time.perf_counter() - start
     start = time.perf_counter()
     estimator.estimate(cloud, shape=PROBE_SHAPE)
     seconds = max(time.perf_counter() - start, 1e-9)
     run = estimator.last_run
-    return Throughput(len(cloud) / seconds, run.network_fraction, run.plan)
+    return Throughput(len(cloud) / seconds, run.network_fraction, run.plan, warm_up)
 
 
 def probe_cloud(radius: float, seed: int = 0) -> np.ndarray:

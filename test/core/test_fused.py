@@ -1,0 +1,105 @@
+"""The compiled window PCA (`fused.py`) against its torch reference (`windows.py`) and against ball PCA from the
+KD-tree, on the same frames: simulated depth (holes, depth edges, boxes on floors), a simulated LiDAR scan with the
+ball growing with range, and the real Kinect and Ouster recordings."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from triplet_normal_ros.core.cloud import without_no_returns
+from triplet_normal_ros.core.conventions import DEPTH_RADIUS, LIDAR_RADIUS, LIDAR_RANGE_SCALE, PCA_DEFAULT_K
+from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.hybrid import ray_noise_normal, structure
+from triplet_normal_ros.core.organized import range_pitch
+from triplet_normal_ros.core.windows import MomentImage
+from triplet_normal_ros.evaluation.metrics import msae
+from triplet_normal_ros.io.bags import InputBag, decode_cloud
+from triplet_normal_ros.io.pointcloud2 import read_xyz
+from triplet_normal_ros.simulation.depth_camera import depth_frame
+from triplet_normal_ros.simulation.lidar import lidar_scan
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+def _recording(bag: str, topic: str) -> tuple[np.ndarray, tuple[int, int]]:
+    with InputBag(DATA / bag) as reader:
+        cloud = decode_cloud(next(iter(reader.messages({topic}))))
+    return without_no_returns(read_xyz(cloud)).astype(np.float64), (cloud.height, cloud.width)
+
+
+def _frames() -> dict[str, tuple[np.ndarray, tuple[int, int], float, float, np.ndarray | None]]:
+    """name -> (points (N, 3), shape, radius, range_scale, exact normals or None)."""
+    depth, lidar = depth_frame(3), lidar_scan(3)
+    kinect, kinect_shape = _recording("kinect_xtion_frames", "/camera/depth/points")
+    ouster, ouster_shape = _recording("ouster_os1_128", "/ouster/points")
+    return {
+        "simulated depth": (depth.points.reshape(-1, 3).astype(np.float64), depth.points.shape[:2], DEPTH_RADIUS,
+                            0.0, depth.normals.reshape(-1, 3)),
+        "simulated lidar": (lidar.points.reshape(-1, 3).astype(np.float64), lidar.points.shape[:2], LIDAR_RADIUS,
+                            LIDAR_RANGE_SCALE, lidar.normals.reshape(-1, 3)),
+        "kinect": (kinect, kinect_shape, DEPTH_RADIUS, 0.0, None),
+        "ouster": (ouster, ouster_shape, LIDAR_RADIUS, LIDAR_RANGE_SCALE, None),
+    }  # fmt: skip
+
+
+FRAMES = _frames()
+
+
+def _fits(name: str):
+    points, shape, radius, scale, _ = FRAMES[name]
+    cloud = torch.from_numpy(points)
+    pitch = range_pitch(cloud, shape)
+    images = [MomentImage(cloud, shape, pitch, compiled=compiled) for compiled in (False, True)]
+    return images, [image.pca(radius, scale) for image in images]
+
+
+@pytest.mark.parametrize("name", sorted(FRAMES))
+def test_the_compiled_windows_are_the_torch_windows(name: str) -> None:
+    (_, _), (torch_fit, fused_fit) = _fits(name)
+    for reference, compiled in zip(torch_fit.box, fused_fit.box, strict=True):
+        assert torch.equal(reference, compiled)
+    assert torch.equal(torch_fit.valid, fused_fit.valid) and torch.equal(torch_fit.count, fused_fit.count)
+    valid = torch_fit.valid
+    cos = (torch_fit.normal[valid] * fused_fit.normal[valid]).sum(dim=1).abs()
+    assert float((1 - cos).max()) < 1e-12
+    scale = torch_fit.eigvals[valid].sum(dim=1, keepdim=True)
+    assert float(((torch_fit.eigvals[valid] - fused_fit.eigvals[valid]).abs() / scale).max()) < 1e-9
+    assert torch.allclose(torch_fit.mean[valid], fused_fit.mean[valid], rtol=0, atol=1e-9)
+    assert torch.allclose(torch_fit.cov[valid], fused_fit.cov[valid], rtol=1e-6, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", ["simulated depth", "simulated lidar"])
+def test_hybrids_survey_reads_the_same_cue_from_the_compiled_tables(name: str) -> None:
+    images, fits = _fits(name)
+    cues = [structure(image, fit, ray_noise_normal(fit)) for image, fit in zip(images, fits, strict=True)]
+    valid = fits[0].valid
+    assert torch.allclose(cues[0].z[valid], cues[1].z[valid], rtol=1e-6, atol=1e-6)
+    assert torch.allclose(cues[0].bend[valid], cues[1].bend[valid], rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["simulated depth", "simulated lidar"])
+def test_compiled_window_pca_stays_near_ball_pca_from_the_kdtree(name: str) -> None:
+    """The windows stand for balls: against exact normals, their error stays within a bound of the ball's (a whole
+    ball from the KD-tree at the same radius, grown with range alike) on frames with folds, holes and edges. The
+    depth bound is loose because the windows bleed across folds today (BALL_BOUND); it catches a regression."""
+    points, shape, radius, scale, exact = FRAMES[name]
+    window = NormalEstimator("pca", radius=radius, range_scale=scale, device="cpu")
+    normals, _ = window.estimate(points, shape=shape)
+    assert window.last_run.plan.engine == "compiled" and window.last_run.search == "window"
+    ball, _ = NormalEstimator(
+        "pca", radius=radius, range_scale=scale, k=PCA_DEFAULT_K, neighbours="kdtree", device="cpu"
+    ).estimate(points)
+    answered = np.isfinite(normals).all(axis=1) & np.isfinite(ball).all(axis=1)
+    assert answered.sum() > 0.5 * np.isfinite(points).all(axis=1).sum()
+    window_error, ball_error = msae(normals[answered], exact[answered]), msae(ball[answered], exact[answered])
+    assert window_error < BALL_BOUND[name] * ball_error, (window_error, ball_error)
+
+
+#: Window MSAE over ball MSAE where both answer, measured on these frames: depth 1.89 (0.0453 against 0.0240: a
+#: window seen at a grazing angle reaches past the ball, across folds where the depth is continuous, as
+#: docs/RESULTS.md reports), LiDAR 0.925 (0.0467 against 0.0505).
+BALL_BOUND = {"simulated depth": 2.1, "simulated lidar": 1.05}

@@ -1,0 +1,374 @@
+"""The integral-image window PCA of `windows.py`, compiled: one pass per pixel instead of a few dozen torch passes.
+
+`windows.MomentImage` runs this on a CPU and its torch code on a GPU (`plan.Plan.engine`); both compute the same
+windows and the same closed-form eigen-decomposition, in the same order, so their answers agree to float64 roundoff
+(test/core/test_fused.py compares them pixel by pixel). The torch code stays the reference: the docstrings there say
+why each rule is what it is; here are the loops.
+
+The per-pixel stages (window size from the range, walls from the range jumps, the largest clear window with its
+one-sided alternatives, the box sums, the eigen-decomposition and the validity tests) run in one numba loop per pixel.
+Each kernel takes a band of rows (or columns) and releases the GIL, and `_bands` runs the bands on as many Python
+threads as torch uses: numba's own parallel layers either start a second OpenMP runtime, whose spinning threads made
+torch's next passes 5-10x slower, or are not safe to call from two threads at once, which an estimator allows.
+Compiled code is cached on disk (numba's `cache=True`), so only the first process after an install pays the compile
+(about 20 s here), and it pays it at start-up: the node's throughput probe runs this path before the first cloud.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from concurrent.futures import ThreadPoolExecutor
+from functools import cache, partial
+
+import numpy as np
+import torch
+from numba import njit
+
+from .conventions import MIN_NEIGHBOURS
+from .eigen import DEGENERATE_CROSS
+from .frames import COLLINEAR_RATIO
+from .windows import (
+    AREA_MATCH,
+    GRAZING_TAN,
+    JUMP_RADIUS_FRACTION,
+    JUMP_RANGE_FRACTION,
+    ONE_SIDED,
+    SHRINK_LEVELS,
+)
+
+_TINY = np.finfo(np.float64).tiny
+#: (up, down, left, right) of the four half windows, then the four quarter windows.
+_SIDES = np.array(ONE_SIDED, dtype=np.int64)
+
+
+def window_pca(
+    points: np.ndarray, pitch_row: np.ndarray, pitch_col: np.ndarray, radius: float, range_scale: float
+) -> dict[str, np.ndarray]:
+    """Window PCA of every pixel of an (H, W, 3) organized cloud (NaN holes) with the per-row and per-column ray
+    pitch: the moment table and offset `MomentImage` keeps, and the `WindowPCA` fields, as numpy arrays."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    height, width = points.shape[:2]
+    ranges = np.empty((height, width))
+    _bands(_ranges, height, points, ranges)
+    finite = np.isfinite(ranges)
+    offset = points[finite].mean(axis=0) if finite.any() else np.zeros(3)
+    moments = np.empty((height, width, 10))
+    _bands(_moments, height, points, ranges, offset, moments)
+    table = _summed_area(moments)
+    reach = np.full((height, width), float(radius)) if range_scale == 0 else np.maximum(ranges * range_scale, radius)
+    rows = np.ascontiguousarray(pitch_row, dtype=np.float64)
+    cols = np.ascontiguousarray(pitch_col, dtype=np.float64)
+    along_row, along_col = np.empty((height, width)), np.empty((height, width))
+    _bands(_thresholds, height, ranges, reach, rows, cols, along_row, along_col)
+    col_jumps, row_jumps = np.zeros((height, max(width - 1, 0), 1)), np.zeros((max(height - 1, 0), width, 1))
+    _bands(_row_jumps, height, ranges, along_row, col_jumps)
+    _bands(_column_jumps, width, ranges, along_col, row_jumps)
+    col_walls, row_walls = _summed_area(col_jumps)[..., 0], _summed_area(row_jumps)[..., 0]
+    n = height * width
+    fit = {
+        "normal": np.empty((n, 3)), "eigvals": np.empty((n, 3)), "count": np.empty(n),
+        "valid": np.zeros(n, dtype=np.bool_), "mean": np.empty((n, 3)), "cov": np.empty((n, 6)),
+        "box": np.empty((4, n), dtype=np.int64), "reach": np.empty(n),
+    }  # fmt: skip
+    _bands(
+        _pixels, height, table, ranges, reach, rows, cols, col_walls, row_walls, float(radius),
+        *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
+        pieces=4,
+    )  # fmt: skip
+    fit["mean"] += offset
+    return {"table": table, "offset": offset, **fit}
+
+
+def _bands(kernel, lines: int, *args, pieces: int = 1) -> None:
+    """kernel(*args, lo, hi) over [0, lines) cut into `pieces` bands per thread torch uses, run on that many threads
+    (the kernels release the GIL). More bands than threads balance rows that cost more (those beside edges)."""
+    threads = max(1, torch.get_num_threads())
+    edges = np.linspace(0, lines, min(lines, threads * pieces) + 1).astype(np.int64)
+    spans = [(int(lo), int(hi)) for lo, hi in itertools.pairwise(edges) if hi > lo]
+    if threads == 1 or len(spans) == 1:
+        for lo, hi in spans:
+            kernel(*args, lo, hi)
+        return
+    for future in [_pool(threads).submit(partial(kernel, *args, lo, hi)) for lo, hi in spans]:
+        future.result()
+
+
+@cache
+def _pool(threads: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(threads, thread_name_prefix="fused")
+
+
+def _summed_area(channels: np.ndarray) -> np.ndarray:
+    """(h, w, C) -> (h + 1, w + 1, C) inclusive prefix sums with a zero first row and column, summed down the columns
+    first and along the rows second, as `windows._summed_area` sums them."""
+    h, w, k = channels.shape
+    table = np.zeros((h + 1, w + 1, k))
+    _bands(_sum_down, w, channels, table)
+    _bands(_sum_across, h, table)
+    return table
+
+
+@njit(cache=True, nogil=True)
+def _ranges(points, ranges, lo, hi):
+    """Each pixel's range, NaN at holes."""
+    for r in range(lo, hi):
+        for c in range(points.shape[1]):
+            x, y, z = points[r, c, 0], points[r, c, 1], points[r, c, 2]
+            finite = np.isfinite(x) and np.isfinite(y) and np.isfinite(z)
+            ranges[r, c] = math.sqrt(x * x + y * y + z * z) if finite else np.nan
+
+
+@njit(cache=True, nogil=True)
+def _moments(points, ranges, offset, out, lo, hi):
+    """1, x, y, z, xx, xy, xz, yy, yz, zz of each finite pixel's point minus `offset`, 0 at holes."""
+    for r in range(lo, hi):
+        for c in range(points.shape[1]):
+            if np.isfinite(ranges[r, c]):
+                x, y, z = points[r, c, 0] - offset[0], points[r, c, 1] - offset[1], points[r, c, 2] - offset[2]
+                out[r, c, 0] = 1.0
+                out[r, c, 1], out[r, c, 2], out[r, c, 3] = x, y, z
+                out[r, c, 4], out[r, c, 5], out[r, c, 6] = x * x, x * y, x * z
+                out[r, c, 7], out[r, c, 8], out[r, c, 9] = y * y, y * z, z * z
+            else:
+                out[r, c, :] = 0.0
+
+
+@njit(cache=True, nogil=True)
+def _sum_down(channels, table, lo, hi):
+    for c in range(lo, hi):
+        for j in range(channels.shape[2]):
+            running = 0.0
+            for r in range(channels.shape[0]):
+                running += channels[r, c, j]
+                table[r + 1, c + 1, j] = running
+
+
+@njit(cache=True, nogil=True)
+def _sum_across(table, lo, hi):
+    for r in range(lo, hi):
+        for j in range(table.shape[2]):
+            running = 0.0
+            for c in range(table.shape[1] - 1):
+                running += table[r + 1, c + 1, j]
+                table[r + 1, c + 1, j] = running
+
+
+@njit(cache=True, nogil=True)
+def _thresholds(ranges, reach, pitch_row, pitch_col, along_row, along_col, lo, hi):
+    """The range step that makes a wall along a row (between columns) and along a column (between rows)."""
+    for r in range(lo, hi):
+        by_row = max(GRAZING_TAN * pitch_row[r], JUMP_RANGE_FRACTION)
+        for c in range(ranges.shape[1]):
+            floor = reach[r, c] * JUMP_RADIUS_FRACTION
+            by_col = max(GRAZING_TAN * pitch_col[c], JUMP_RANGE_FRACTION)
+            along_row[r, c] = _nan_max(ranges[r, c] * by_col, floor)
+            along_col[r, c] = _nan_max(ranges[r, c] * by_row, floor)
+
+
+@njit(cache=True, nogil=True)
+def _row_jumps(ranges, threshold, out, lo, hi):
+    """out[r, c] = 1 where the valid pixel at column c and the next valid pixel of its row (at c + 1 or beyond a run
+    of holes) differ in range by more than either one's threshold (`windows._jumps`)."""
+    width = ranges.shape[1]
+    for r in range(lo, hi):
+        following = -1
+        for c in range(width - 1, -1, -1):
+            if np.isfinite(ranges[r, c]):
+                if following >= 0 and abs(ranges[r, c] - ranges[r, following]) > max(
+                    threshold[r, c], threshold[r, following]
+                ):
+                    out[r, c, 0] = 1.0
+                following = c
+
+
+@njit(cache=True, nogil=True)
+def _column_jumps(ranges, threshold, out, lo, hi):
+    """`_row_jumps` down the columns: out[r, c] = 1 between rows r and the next valid row of column c."""
+    height = ranges.shape[0]
+    for c in range(lo, hi):
+        following = -1
+        for r in range(height - 1, -1, -1):
+            if np.isfinite(ranges[r, c]):
+                if following >= 0 and abs(ranges[r, c] - ranges[following, c]) > max(
+                    threshold[r, c], threshold[following, c]
+                ):
+                    out[r, c, 0] = 1.0
+                following = r
+
+
+@njit(cache=True, nogil=True)
+def _nan_max(a, b):
+    """torch.maximum: NaN when either is NaN."""
+    if np.isnan(a) or np.isnan(b):
+        return np.nan
+    return max(a, b)
+
+
+@njit(cache=True, nogil=True)
+def _box(table, top, bottom, left, right, k):
+    """Channel k's sum over the inclusive box, from a 3-D summed-area table."""
+    return (
+        table[bottom + 1, right + 1, k] - table[top, right + 1, k] - table[bottom + 1, left, k] + table[top, left, k]
+    )
+
+
+@njit(cache=True, nogil=True)
+def _box2(table, top, bottom, left, right):
+    """The sum over the inclusive box, from a 2-D summed-area table."""
+    return table[bottom + 1, right + 1] - table[top, right + 1] - table[bottom + 1, left] + table[top, left]
+
+
+@njit(cache=True, nogil=True)
+def _crossed(col_walls, row_walls, top, bottom, left, right):
+    """Whether a wall lies strictly inside the box (`windows._WallTable.crossed`)."""
+    last_col = max(col_walls.shape[1] - 2, 0)
+    last_row = max(row_walls.shape[0] - 2, 0)
+    inner = 0.0
+    if right > left:
+        lo = min(max(left, 0), last_col)
+        hi = max(min(max(right - 1, 0), last_col), lo)
+        inner += _box2(col_walls, top, bottom, lo, hi)
+    if bottom > top:
+        lo = min(max(top, 0), last_row)
+        hi = max(min(max(bottom - 1, 0), last_row), lo)
+        inner += _box2(row_walls, lo, hi, left, right)
+    return inner > 0.5
+
+
+@njit(cache=True, nogil=True)
+def _box_at(r, c, half_row, half_col, up, down, left, right, level, height, width):
+    hr = (half_row * level + SHRINK_LEVELS // 2) // SHRINK_LEVELS
+    hc = (half_col * level + SHRINK_LEVELS // 2) // SHRINK_LEVELS
+    return max(r - hr * up, 0), min(r + hr * down, height - 1), max(c - hc * left, 0), min(c + hc * right, width - 1)
+
+
+@njit(cache=True, nogil=True)
+def _largest_clear(r, c, half_row, half_col, up, down, left, right, col_walls, row_walls, height, width):
+    """The box at the largest shrink level no wall crosses, and that level (a binary search, as `_largest_clear`)."""
+    top, bottom, lft, rgt = _box_at(r, c, half_row, half_col, up, down, left, right, SHRINK_LEVELS, height, width)
+    if not _crossed(col_walls, row_walls, top, bottom, lft, rgt):
+        return top, bottom, lft, rgt, SHRINK_LEVELS
+    lo, hi = 0, SHRINK_LEVELS
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        top, bottom, lft, rgt = _box_at(r, c, half_row, half_col, up, down, left, right, mid, height, width)
+        if _crossed(col_walls, row_walls, top, bottom, lft, rgt):
+            hi = mid
+        else:
+            lo = mid
+    top, bottom, lft, rgt = _box_at(r, c, half_row, half_col, up, down, left, right, lo, height, width)
+    return top, bottom, lft, rgt, lo
+
+
+@njit(cache=True, nogil=True)
+def _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width):
+    """The pixel's window: the largest clear centred box, and where a wall cut it below half its reach, the fullest
+    of it and the one-sided halves, then (where every half was cut too) the quarters (`_one_sided_where_shrunk`)."""
+    top, bottom, left, right, level = _largest_clear(
+        r, c, half_row, half_col, 1, 1, 1, 1, col_walls, row_walls, height, width
+    )
+    if level >= SHRINK_LEVELS // 2:
+        return top, bottom, left, right
+    for first in (0, 4):
+        best = _box(table, top, bottom, left, right, 0)
+        widest = 0
+        for s in range(first, first + 4):
+            t, b, lf, rt, lvl = _largest_clear(
+                r, c, half_row, half_col, _SIDES[s, 0], _SIDES[s, 1], _SIDES[s, 2], _SIDES[s, 3],
+                col_walls, row_walls, height, width,
+            )  # fmt: skip
+            widest = max(widest, lvl)
+            filled = _box(table, t, b, lf, rt, 0)
+            if filled > best:
+                best, top, bottom, left, right = filled, t, b, lf, rt
+        if widest >= SHRINK_LEVELS // 2:
+            break
+    return top, bottom, left, right
+
+
+@njit(cache=True, nogil=True)
+def _eigen(a00, a01, a02, a11, a12, a22, eigvals, normal):
+    """`eigen.smallest_eigenvector` for one matrix: ascending eigenvalues and the smallest one's unit eigenvector
+    (NaN where no two rows of A - λ0 I span a plane) into `eigvals` and `normal`."""
+    scale = max(abs(a00) + abs(a11) + abs(a22), _TINY)
+    a00, a01, a02, a11, a12, a22 = a00 / scale, a01 / scale, a02 / scale, a11 / scale, a12 / scale, a22 / scale
+    q = (a00 + a11 + a22) / 3
+    off = a01 * a01 + a02 * a02 + a12 * a12
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p = math.sqrt(max((b00 * b00 + b11 * b11 + b22 * b22 + 2 * off) / 6, 0.0))
+    safe_p = max(p, 1e-30)
+    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)) / (
+        safe_p * safe_p * safe_p
+    )
+    phi = math.acos(min(max(det / 2, -1.0), 1.0)) / 3
+    largest = q + 2 * p * math.cos(phi)
+    smallest = q + 2 * p * math.cos(phi + 2 * math.pi / 3)
+    middle = 3 * q - largest - smallest
+    eigvals[0] = max(smallest, 0.0) * scale
+    eigvals[1] = max(middle, 0.0) * scale
+    eigvals[2] = max(largest, 0.0) * scale
+    r0 = (a00 - smallest, a01, a02)
+    r1 = (a01, a11 - smallest, a12)
+    r2 = (a02, a12, a22 - smallest)
+    best, bx, by, bz = -1.0, 0.0, 0.0, 0.0
+    for u, v in ((r0, r1), (r0, r2), (r1, r2)):
+        x = u[1] * v[2] - u[2] * v[1]
+        y = u[2] * v[0] - u[0] * v[2]
+        z = u[0] * v[1] - u[1] * v[0]
+        length = math.sqrt(x * x + y * y + z * z)
+        if length > best:
+            best, bx, by, bz = length, x, y, z
+    if best > DEGENERATE_CROSS:
+        normal[0], normal[1], normal[2] = bx / best, by / best, bz / best
+    else:
+        normal[0] = normal[1] = normal[2] = np.nan
+
+
+@njit(cache=True, nogil=True)
+def _pixels(
+    table, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, radius,
+    normal, eigvals, count, valid, mean, cov, box, flat_reach, lo, hi,
+):  # fmt: skip
+    """Each pixel's window, its moments, PCA and validity (`MomentImage.pca` and `windows._window_pca`)."""
+    height, width = ranges.shape
+    for r in range(lo, hi):
+        for c in range(width):
+            i = r * width + c
+            angle = math.asin(min(reach[r, c] / ranges[r, c], 1.0)) * AREA_MATCH
+            half_row = min(max(_round_or_zero(angle / pitch_row[r]), 0.0), float(height))
+            half_col = min(max(_round_or_zero(angle / pitch_col[c]), 0.0), float(width))
+            top, bottom, left, right = _window(
+                r, c, np.int64(half_row), np.int64(half_col), table, col_walls, row_walls, height, width
+            )
+            box[0, i], box[1, i], box[2, i], box[3, i] = top, bottom, left, right
+            flat_reach[i] = radius if np.isnan(reach[r, c]) else reach[r, c]
+            k = _box(table, top, bottom, left, right, 0)
+            count[i] = k
+            scale = 1.0 / max(k, 1.0)
+            mx = _box(table, top, bottom, left, right, 1) * scale
+            my = _box(table, top, bottom, left, right, 2) * scale
+            mz = _box(table, top, bottom, left, right, 3) * scale
+            mean[i, 0], mean[i, 1], mean[i, 2] = mx, my, mz
+            cov[i, 0] = _box(table, top, bottom, left, right, 4) * scale - mx * mx
+            cov[i, 1] = _box(table, top, bottom, left, right, 5) * scale - mx * my
+            cov[i, 2] = _box(table, top, bottom, left, right, 6) * scale - mx * mz
+            cov[i, 3] = _box(table, top, bottom, left, right, 7) * scale - my * my
+            cov[i, 4] = _box(table, top, bottom, left, right, 8) * scale - my * mz
+            cov[i, 5] = _box(table, top, bottom, left, right, 9) * scale - mz * mz
+            _eigen(cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5], eigvals[i], normal[i])
+            on_row = _box(table, r, r, left, right, 0)
+            on_col = _box(table, top, bottom, c, c, 0)
+            valid[i] = (
+                k >= MIN_NEIGHBOURS
+                and np.isfinite(normal[i, 0])
+                and on_row < k
+                and on_col < k
+                and eigvals[i, 1] > COLLINEAR_RATIO * eigvals[i, 2]
+            )
+
+
+@njit(cache=True, nogil=True)
+def _round_or_zero(x):
+    """torch.round (half to even) with NaN as 0, as `_half_widths` rounds."""
+    return 0.0 if np.isnan(x) else np.round(x)
