@@ -1,8 +1,9 @@
 """Helpers shared by tests in several folders, importable as ``helpers`` (test/conftest.py puts test/ on sys.path).
 
 Only test code uses these, so they live here rather than in the package. Training-related helpers come first; add
-other layers' helpers in their own section. The node's answer (last section) needs no rclpy: `ros/params.py` is
-plain data.
+other layers' helpers in their own section. The node's estimator (`node_estimator`) needs no rclpy: `ros/params.py`
+is plain data. The references the answers are checked against (plain PCA, exact normals of simulated frames) use
+numpy, scipy and the simulation only.
 """
 
 import tracemalloc
@@ -13,7 +14,6 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from triplet_normal_ros.core.cloud import CloudNormals, estimate_cloud
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.io.cloud_files import write_normals
 from triplet_normal_ros.ros.params import SPECS, NodeSettings, apply
@@ -46,7 +46,7 @@ def write_points(path: str | Path, points: np.ndarray, normals: np.ndarray | Non
     write_normals(path, points, np.full(np.shape(points), np.nan) if normals is None else normals)
 
 
-# --- the node's answer ---------------------------------------------------------------------------------------------
+# --- the node's estimator ------------------------------------------------------------------------------------------
 
 
 def node_settings(params: Mapping[str, Any]) -> NodeSettings:
@@ -59,23 +59,7 @@ def node_estimator(params: Mapping[str, Any]) -> NormalEstimator:
     return NormalEstimator(**node_settings(params).estimator_args())
 
 
-def node_answer(
-    params: Mapping[str, Any],
-    points: np.ndarray,
-    shape: tuple[int, int] | None,
-    estimator: NormalEstimator | None = None,
-) -> CloudNormals:
-    """What a node running with `params` publishes for a cloud of `points` (N, 3) and (height, width) `shape`: the
-    node's per-cloud step, with its estimator (`estimator`, when given, must come from `node_estimator(params)`)."""
-    settings = node_settings(params)
-    estimator = estimator or node_estimator(params)
-    viewpoint = settings.viewpoint if settings.orient else None
-    return estimate_cloud(
-        estimator, points, shape=shape, viewpoint=viewpoint, zeros_are_no_returns=settings.zeros_are_no_returns
-    )
-
-
-# --- an independent reference --------------------------------------------------------------------------------------
+# --- independent references ----------------------------------------------------------------------------------------
 
 
 def ball_pca(
