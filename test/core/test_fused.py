@@ -103,3 +103,21 @@ def test_compiled_window_pca_stays_near_ball_pca_from_the_kdtree(name: str) -> N
 #: window seen at a grazing angle reaches past the ball, across folds where the depth is continuous, as
 #: docs/RESULTS.md reports), LiDAR 0.925 (0.0467 against 0.0505).
 BALL_BOUND = {"simulated depth": 2.1, "simulated lidar": 1.05}
+
+
+@pytest.mark.parametrize("name", sorted(FRAMES))
+def test_the_compiled_pitch_is_the_torch_pitch(name: str) -> None:
+    from triplet_normal_ros.core import fused
+    from triplet_normal_ros.core.organized import _PITCH_SAMPLES, MAX_PITCH_SPREAD, ray_pitch
+
+    points, shape = FRAMES[name][:2]
+    for grid in (points.reshape(*shape, 3), points.reshape(*shape, 3) + np.array([0.0, 0.0, -1.3])):
+        for axis in (0, 1):
+            reference = ray_pitch(torch.from_numpy(grid), axis)
+            compiled = fused.ray_pitch(grid, axis, _PITCH_SAMPLES, MAX_PITCH_SPREAD)
+            if reference is None:
+                assert compiled is None
+            else:
+                # the same medians; lines without data take the 5 % quantile, whose interpolation differs in the last
+                # float64 bits between numpy and torch, and so at most one float32 step
+                np.testing.assert_allclose(compiled, reference.numpy(), rtol=3e-7, atol=0)

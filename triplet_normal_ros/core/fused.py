@@ -372,3 +372,57 @@ def _pixels(
 def _round_or_zero(x):
     """torch.round (half to even) with NaN as 0, as `_half_widths` rounds."""
     return 0.0 if np.isnan(x) else np.round(x)
+
+
+def ray_pitch(grid: np.ndarray, axis: int, samples: int, spread: float) -> np.ndarray | None:
+    """`organized.ray_pitch` compiled: the median angle between adjacent rays along `axis` per pixel line (float32),
+    or None when fewer than 16 pairs are valid or their 5-95 % spread exceeds `spread`."""
+    grid = np.ascontiguousarray(grid, dtype=np.float64)
+    if axis == 0:
+        angle = np.empty((grid.shape[0] - 1, grid.shape[1]))
+        _bands(_angles, grid.shape[0] - 1, grid, angle, 1, 0)
+    else:
+        angle = np.empty((grid.shape[0], grid.shape[1] - 1))
+        _bands(_angles, grid.shape[0], grid, angle, 0, 1)
+    valid = angle[np.isfinite(angle)]
+    if len(valid) < 16:
+        return None
+    if len(valid) > samples:
+        valid = valid[np.round(np.linspace(0, len(valid) - 1, samples)).astype(np.int64)]
+    low, high = np.quantile(valid, [0.05, 0.95])
+    if not (low > 0 and high / low <= spread):
+        return None
+    lines = angle if axis == 0 else np.ascontiguousarray(angle.T)  # one pixel line per row of `lines`
+    per_line = np.empty(len(lines))
+    _bands(_lower_medians, len(lines), lines, per_line)
+    per_line = np.where(np.isfinite(per_line) & (per_line > 0), per_line, low)
+    return np.concatenate([per_line, per_line[-1:]]).astype(np.float32)
+
+
+@njit(cache=True, nogil=True)
+def _angles(grid, out, step_row, step_col, lo, hi):
+    """The angle between the rays of each pixel and its neighbour (step_row, step_col) further on, as torch's
+    cosine_similarity and atan2 give it (NaN where either is missing)."""
+    for r in range(lo, hi):
+        for c in range(out.shape[1]):
+            ax, ay, az = grid[r, c, 0], grid[r, c, 1], grid[r, c, 2]
+            bx, by, bz = grid[r + step_row, c + step_col, 0], grid[r + step_row, c + step_col, 1], grid[
+                r + step_row, c + step_col, 2
+            ]
+            na = max(math.sqrt(ax * ax + ay * ay + az * az), 1e-8)
+            nb = max(math.sqrt(bx * bx + by * by + bz * bz), 1e-8)
+            cos = (ax / na) * (bx / nb) + (ay / na) * (by / nb) + (az / na) * (bz / nb)
+            out[r, c] = math.atan2(math.sqrt(max(1 - cos * cos, 0.0)), cos)
+
+
+@njit(cache=True, nogil=True)
+def _lower_medians(lines, out, lo, hi):
+    """torch.nanmedian of each row of `lines`: the lower middle of its finite values, NaN when it has none."""
+    buffer = np.empty(lines.shape[1])
+    for i in range(lo, hi):
+        n = 0
+        for v in lines[i]:
+            if np.isfinite(v):
+                buffer[n] = v
+                n += 1
+        out[i] = np.nan if n == 0 else np.partition(buffer[:n], (n - 1) // 2)[(n - 1) // 2]

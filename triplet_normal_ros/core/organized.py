@@ -134,10 +134,20 @@ def inspect_grid(cloud: torch.Tensor, shape: tuple[int, int], pitch: bool = True
                              "not destaggered, column-major or shuffled order, or organized by a filter)")
     if not pitch:
         return GridCheck(True)
-    row, col = ray_pitch(grid, 0), ray_pitch(grid, 1)
+    row, col = _pitch(grid, 0), _pitch(grid, 1)
     if row is None or col is None:
         return GridCheck(True, None, "the angles between adjacent rays are not one sensor's (not in its frame)")
     return GridCheck(True, (row, col))
+
+
+def _pitch(grid: torch.Tensor, axis: int) -> torch.Tensor | None:
+    """`ray_pitch`, by the compiled kernel on a CPU (the same medians: test_fused.py), by torch on a GPU."""
+    if grid.device.type != "cpu":
+        return ray_pitch(grid, axis)
+    from . import fused
+
+    pitch = fused.ray_pitch(grid.numpy(), axis, _PITCH_SAMPLES, MAX_PITCH_SPREAD)
+    return None if pitch is None else torch.from_numpy(pitch)
 
 
 def range_pitch(cloud: torch.Tensor, shape: tuple[int, int]) -> RangePitch | None:
