@@ -82,8 +82,7 @@ def window_hybrid(
     s = call.settings
     with call.timed("survey"):
         fit = image.pca(s.radius, s.range_scale)
-        survey = ray_noise_normal(fit)
-        cue = structure(image, fit, survey)
+        survey, cue = survey_and_cue(image, fit)
         finite = image.finite.reshape(-1)
         valid = fit.valid & finite
         top, bottom, left, right = fit.box
@@ -111,6 +110,18 @@ def window_hybrid(
             if progress is not None:
                 progress(len(out))
     return normals, curvature
+
+
+def survey_and_cue(image: MomentImage, fit: WindowPCA) -> tuple[torch.Tensor, Structure]:
+    """The survey's normal (`ray_noise_normal`) and the parts' cue along it (`structure`): compiled where the
+    windows were (`fused.survey`, the same values to roundoff: test_fused.py), else in torch."""
+    if not image.compiled:
+        survey = ray_noise_normal(fit)
+        return survey, structure(image, fit, survey)
+    from . import fused
+
+    normal, z, bend = fused.survey(image.table.numpy(), image.offset.numpy(), image.fit)
+    return torch.from_numpy(normal), Structure(torch.from_numpy(z), torch.from_numpy(bend))
 
 
 class Structure(NamedTuple):

@@ -133,6 +133,7 @@ class MomentImage:
         self.counts = self.table[..., :1].contiguous()
         self.first = self.table[..., :4].contiguous()
         self.offset = torch.from_numpy(out["offset"])
+        self.fit = out  # the compiled survey (`fused.survey`) reads it as it is
         t = {name: torch.from_numpy(out[name]) for name in ("normal", "eigvals", "count", "valid", "mean", "cov")}
         box = tuple(torch.from_numpy(out["box"][i]) for i in range(4))
         reach = float(radius) if range_scale == 0 else torch.from_numpy(out["reach"])
