@@ -49,13 +49,13 @@ def window_pca(
     pitch: the moment table and offset `MomentImage` keeps, and the `WindowPCA` fields, as numpy arrays."""
     points = np.ascontiguousarray(points, dtype=np.float64)
     height, width = points.shape[:2]
-    ranges = np.empty((height, width))
-    _bands(_ranges, height, points, ranges)
-    finite = np.isfinite(ranges)
-    offset = points[finite].mean(axis=0) if finite.any() else np.zeros(3)
-    moments = np.empty((height, width, 10))
-    _bands(_moments, height, points, ranges, offset, moments)
-    table = _summed_area(moments)
+    ranges, sums = np.empty((height, width)), np.zeros((height, 4))
+    _bands(_ranges, height, points, ranges, sums)
+    total = sums.sum(axis=0)
+    offset = total[:3] / total[3] if total[3] else np.zeros(3)
+    table = np.zeros((height + 1, width + 1, 10))
+    _bands(_moments_down, width, points, ranges, offset, table)
+    _bands(_sum_across, height, table)
     reach = np.full((height, width), float(radius)) if range_scale == 0 else np.maximum(ranges * range_scale, radius)
     rows = np.ascontiguousarray(pitch_row, dtype=np.float64)
     cols = np.ascontiguousarray(pitch_col, dtype=np.float64)
@@ -110,28 +110,42 @@ def _summed_area(channels: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _ranges(points, ranges, lo, hi):
-    """Each pixel's range, NaN at holes."""
+def _ranges(points, ranges, sums, lo, hi):
+    """Each pixel's range, NaN at holes, and each row's sums of x, y, z and its count of finite points."""
     for r in range(lo, hi):
         for c in range(points.shape[1]):
             x, y, z = points[r, c, 0], points[r, c, 1], points[r, c, 2]
-            finite = np.isfinite(x) and np.isfinite(y) and np.isfinite(z)
-            ranges[r, c] = math.sqrt(x * x + y * y + z * z) if finite else np.nan
+            if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
+                ranges[r, c] = math.sqrt(x * x + y * y + z * z)
+                sums[r, 0] += x
+                sums[r, 1] += y
+                sums[r, 2] += z
+                sums[r, 3] += 1.0
+            else:
+                ranges[r, c] = np.nan
 
 
 @njit(cache=True, nogil=True)
-def _moments(points, ranges, offset, out, lo, hi):
-    """1, x, y, z, xx, xy, xz, yy, yz, zz of each finite pixel's point minus `offset`, 0 at holes."""
-    for r in range(lo, hi):
-        for c in range(points.shape[1]):
+def _moments_down(points, ranges, offset, table, lo, hi):
+    """The first pass of the moment table, down columns lo..hi: running sums of 1, x, y, z, xx, xy, xz, yy, yz, zz of
+    each finite pixel's point minus `offset` (holes add nothing)."""
+    running = np.empty(10)
+    for c in range(lo, hi):
+        running[:] = 0.0
+        for r in range(points.shape[0]):
             if np.isfinite(ranges[r, c]):
                 x, y, z = points[r, c, 0] - offset[0], points[r, c, 1] - offset[1], points[r, c, 2] - offset[2]
-                out[r, c, 0] = 1.0
-                out[r, c, 1], out[r, c, 2], out[r, c, 3] = x, y, z
-                out[r, c, 4], out[r, c, 5], out[r, c, 6] = x * x, x * y, x * z
-                out[r, c, 7], out[r, c, 8], out[r, c, 9] = y * y, y * z, z * z
-            else:
-                out[r, c, :] = 0.0
+                running[0] += 1.0
+                running[1] += x
+                running[2] += y
+                running[3] += z
+                running[4] += x * x
+                running[5] += x * y
+                running[6] += x * z
+                running[7] += y * y
+                running[8] += y * z
+                running[9] += z * z
+            table[r + 1, c + 1, :] = running
 
 
 @njit(cache=True, nogil=True)
@@ -389,7 +403,7 @@ def ray_pitch(grid: np.ndarray, axis: int, samples: int, spread: float) -> np.nd
         return None
     if len(valid) > samples:
         valid = valid[np.round(np.linspace(0, len(valid) - 1, samples)).astype(np.int64)]
-    low, high = np.quantile(valid, [0.05, 0.95])
+    low, high = _quantiles(valid, 0.05, 0.95)
     if not (low > 0 and high / low <= spread):
         return None
     lines = angle if axis == 0 else np.ascontiguousarray(angle.T)  # one pixel line per row of `lines`
@@ -397,6 +411,20 @@ def ray_pitch(grid: np.ndarray, axis: int, samples: int, spread: float) -> np.nd
     _bands(_lower_medians, len(lines), lines, per_line)
     per_line = np.where(np.isfinite(per_line) & (per_line > 0), per_line, low)
     return np.concatenate([per_line, per_line[-1:]]).astype(np.float32)
+
+
+def _quantiles(values: np.ndarray, *qs: float) -> list[float]:
+    """np.quantile's linear quantiles (the same interpolation), from a partition instead of a sort."""
+    n = len(values)
+    at = [q * (n - 1) for q in qs]
+    ranks = sorted({min(math.floor(a) + d, n - 1) for a in at for d in (0, 1)})
+    part = np.partition(values, ranks)
+    out = []
+    for a in at:
+        lo = math.floor(a)
+        below, above, t = part[lo], part[min(lo + 1, n - 1)], a - lo
+        out.append(float(below + (above - below) * t if t < 0.5 else above - (above - below) * (1 - t)))
+    return out
 
 
 @njit(cache=True, nogil=True)
