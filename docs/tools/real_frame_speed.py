@@ -1,27 +1,30 @@
-"""Time the methods on the shipped real Kinect frames, in one run: what a user of the node pays per frame.
+"""Time the methods on the shipped real Kinect frames, in one run, beside Open3D's KNN-30 normals on the same points:
+what a user of the node pays per frame.
 
 Each estimator runs once per frame after a warm-up call on a small crop (so start-up costs such as loading the
-checkpoint are not counted), on every valid pixel, neighbours through the estimator's own search, radius 0.05 m.
-Prints a markdown table: seconds per frame, the share of points sent to the network, and ratios measured in this run.
+checkpoint or the compiled kernels are not counted), on every valid pixel, neighbours through the estimator's own
+plan, radius 0.05 m. Open3D (`evaluation/anchors.py`, not a dependency) is timed when it imports, on the finite
+points, the median of 3 runs after a warm-up. Prints a markdown table: seconds per frame, the share of points sent
+to the network, and each time over Open3D KNN30's in this run.
 
-Run: .venv/bin/python docs/tools/real_frame_speed.py   (about 10 minutes on 2 quiet CPU cores)
+Run: .venv/bin/python docs/tools/real_frame_speed.py   (about 3 minutes on 2 quiet CPU cores)
 """
 
+import statistics
 import time
 
 import numpy as np
 
 from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.evaluation import anchors
 from triplet_normal_ros.ros.replay import FRAMES, load_frame
 
 RADIUS = 0.05
 #: Each timed estimator: its label in the table -> its NormalEstimator options (radius and device are shared).
 METHODS = {
-    "pca, k = 30": {"method": "pca", "k": 30},
-    "learned": {"method": "learned"},
-    "hybrid, F gate alone (bend 0)": {"method": "hybrid", "bend": 0.0},
-    "hybrid (default: F > 10, bend > 0.03)": {"method": "hybrid"},
-    "hybrid, lite": {"method": "hybrid", "checkpoint": "lite"},
+    "pca (window)": {"method": "pca"},
+    "hybrid, lite (the node's default on a CPU)": {"method": "hybrid", "checkpoint": "lite"},
+    "hybrid, default checkpoint": {"method": "hybrid", "checkpoint": "default"},
 }
 
 
@@ -31,25 +34,39 @@ def timed(estimator: NormalEstimator, points: np.ndarray, shape: tuple[int, int]
     return time.perf_counter() - start
 
 
+def open3d_seconds(points: np.ndarray) -> float | None:
+    """Open3D KNN30 on the finite points: the median of three runs after a warm-up, or None without Open3D."""
+    try:
+        knn = anchors.open3d_anchors()[0]
+    except ImportError:
+        return None
+    finite = points[np.isfinite(points).all(axis=1)]
+    knn.estimate(finite, None, RADIUS)
+    runs = []
+    for _ in range(3):
+        start = time.perf_counter()
+        knn.estimate(finite, None, RADIUS)
+        runs.append(time.perf_counter() - start)
+    return statistics.median(runs)
+
+
 def main() -> None:
-    print("| frame | valid points | method | s per frame | network share | × pca k = 30 | × learned |")
-    print("| --- | ---: | --- | ---: | ---: | ---: | ---: |")
+    print("| frame | valid points | method | s per frame | network share | × Open3D KNN30 |")
+    print("| --- | ---: | --- | ---: | ---: | ---: |")
     for name in FRAMES:
         frame = load_frame(name)
         points = frame.xyz.reshape(-1, 3).astype(np.float64)
         valid = int(np.isfinite(points).all(axis=1).sum())
-        seconds, shares = {}, {}
+        anchor = open3d_seconds(points)
+        if anchor is not None:
+            print(f"| {name} | {valid:,} | Open3D KNN30 | {anchor:.2f} | - | 1.00 |")
         for label, options in METHODS.items():
             estimator = NormalEstimator(radius=RADIUS, device="cpu", **options)
             estimator.estimate(frame.xyz[200:240, 300:340].reshape(-1, 3).astype(np.float64), shape=(40, 40))
-            seconds[label] = timed(estimator, points, frame.shape)
-            shares[label] = estimator.last_run.network_fraction
-        for label in METHODS:
-            share = "-" if label.startswith("pca") else f"{shares[label]:.0%}"
-            print(
-                f"| {name} | {valid:,} | {label} | {seconds[label]:.1f} | {share} | "
-                f"{seconds[label] / seconds['pca, k = 30']:.1f} | {seconds[label] / seconds['learned']:.2f} |"
-            )
+            seconds = timed(estimator, points, frame.shape)
+            share = "-" if options["method"] == "pca" else f"{estimator.last_run.network_fraction:.0%}"
+            ratio = "-" if anchor is None else f"{seconds / anchor:.2f}"
+            print(f"| {name} | {valid:,} | {label} | {seconds:.2f} | {share} | {ratio} |")
 
 
 if __name__ == "__main__":
