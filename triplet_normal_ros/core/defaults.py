@@ -12,8 +12,8 @@ METHOD = "hybrid"
 #: "" means the shipped checkpoint for the device that runs the network (`shipped_checkpoint`).
 CHECKPOINT = ""
 #: Which shipped checkpoint CHECKPOINT stands for, by device type: the default where a GPU runs the network; lite on a
-#: CPU, where the default's network and plane fits cost about four times lite's for 1.15 × its error on simulated
-#: depth frames (docs/RESULTS.md, "Organized clouds"), so a frame is answered in seconds rather than a quarter minute.
+#: CPU, where the default's network and plane fits cost about four times lite's for 1.089 × its error on simulated
+#: depth frames (docs/RESULTS.md, "Lite checkpoint"), so a frame is answered in seconds rather than a quarter minute.
 SHIPPED_FOR_DEVICE = {"cuda": "default", "cpu": "lite"}
 DEVICE = "auto"
 #: Patches per forward pass; also bounds the cancel latency on a CPU.

@@ -1,4 +1,5 @@
-"""A one-slot, latest-only mailbox between the subscription callback and the worker thread.
+"""A one-slot, latest-only mailbox between the subscription callback and the worker loop (the installed node runs it in
+the process's main thread).
 
 A depth camera publishes faster than a CPU can estimate normals. A queue would make the node fall further behind and
 grow without bound; this slot keeps only the newest cloud, so the worker always processes the freshest data and the
