@@ -26,7 +26,7 @@ from .device import resolve_device
 from .frames import surface_variation
 from .hybrid import hybrid_kernel, window_hybrid
 from .kernels import CHUNK, PCA_CHUNK, Call, RunInfo, finish, learned_kernel, over_pools, pca_kernel
-from .plan import checkpoint_for, plan_cloud
+from .plan import Plan, checkpoint_for, plan_cloud
 from .search import ScanLines, open_search, search_radii
 from .settings import Settings
 from .windows import MomentImage
@@ -175,7 +175,7 @@ class NormalEstimator:
         """The window survey of an organized range image: window PCA (pca), or hybrid's survey and gate."""
         stage = "pca" if plan.kernel == "pca" else "survey"
         with call.timed(stage):
-            image = MomentImage(cloud, shape, pitch, compiled=plan.engine == "compiled")
+            image = _image(plan)(cloud, shape, pitch)
         if plan.kernel == "pca":
             with call.timed(stage):
                 return _window_pca(call, image, query, progress)
@@ -224,6 +224,15 @@ class NormalEstimator:
     neighbours = _setting("neighbours", "The neighbour search asked for (`plan.make_plan` decides what runs).")
     batch_size = _setting("batch_size", "Patches per forward pass; also bounds the cancel latency.")
     seed = _setting("seed", "Seeds the network's subsample of each pool.")
+
+
+def _image(plan: Plan) -> type:
+    """What computes the windows: the compiled kernels (`fused.CompiledImage`) or torch (`windows.MomentImage`)."""
+    if plan.engine == "compiled":
+        from .fused import CompiledImage
+
+        return CompiledImage
+    return MomentImage
 
 
 def _window_pca(call: Call, image: MomentImage, query: np.ndarray, progress) -> tuple[np.ndarray, np.ndarray]:

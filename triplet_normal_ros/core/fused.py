@@ -10,8 +10,9 @@ one-sided alternatives, the box sums, the eigen-decomposition and the validity t
 Each kernel takes a band of rows (or columns) and releases the GIL, and `_bands` runs the bands on as many Python
 threads as torch uses: numba's own parallel layers either start a second OpenMP runtime, whose spinning threads made
 torch's next passes 5-10x slower, or are not safe to call from two threads at once, which an estimator allows.
-Compiled code is cached on disk (numba's `cache=True`), so only the first process after an install pays the compile
-(about 20 s here), and it pays it at start-up: the node's throughput probe runs this path before the first cloud.
+Division follows numpy (`error_model="numpy"`: a point at the origin divides by a zero range into inf, as torch does,
+instead of raising). Compiled code is cached on disk (numba's `cache=True`), so only the first process after an
+install pays the compile (6-20 s here), and it pays it at start-up: the node's throughput probe calls `warm`.
 """
 
 from __future__ import annotations
@@ -35,11 +36,52 @@ from .windows import (
     JUMP_RANGE_FRACTION,
     ONE_SIDED,
     SHRINK_LEVELS,
+    WindowPCA,
 )
 
 _TINY = np.finfo(np.float64).tiny
 #: (up, down, left, right) of the four half windows, then the four quarter windows.
 _SIDES = np.array(ONE_SIDED, dtype=np.int64)
+
+
+class CompiledImage:
+    """`windows.MomentImage` computed by these kernels: the same interface (`finite`, `pca`, and after `pca` the
+    `table`, `first`, `counts` and `offset` hybrid's cue reads) and the same answers; the tables are built in `pca`."""
+
+    compiled = True
+
+    def __init__(self, cloud: torch.Tensor, shape: tuple[int, int], pitch: tuple[torch.Tensor, torch.Tensor]) -> None:
+        self.height, self.width = shape
+        self.device = cloud.device
+        self.points = cloud.to(torch.float64).view(self.height, self.width, 3)
+        self.finite = torch.isfinite(self.points).all(dim=-1)
+        self.pitch_row, self.pitch_col = pitch
+        self.fit: dict[str, np.ndarray] = {}
+
+    def pca(self, radius: float, range_scale: float = 0.0) -> WindowPCA:
+        """`MomentImage.pca`; the raw arrays stay in `fit` for `survey`."""
+        out = window_pca(
+            self.points.numpy(), self.pitch_row.numpy(), self.pitch_col.numpy(), float(radius), float(range_scale)
+        )
+        self.fit = out
+        self.table = torch.from_numpy(out["table"])
+        self.counts = self.table[..., :1].contiguous()
+        self.first = self.table[..., :4].contiguous()
+        self.offset = torch.from_numpy(out["offset"])
+        t = {name: torch.from_numpy(out[name]) for name in ("normal", "eigvals", "count", "valid", "mean", "cov")}
+        box = tuple(torch.from_numpy(out["box"][i]) for i in range(4))
+        reach = float(radius) if range_scale == 0 else torch.from_numpy(out["reach"])
+        return WindowPCA(t["normal"], t["eigvals"], t["count"], t["valid"], reach, t["mean"], t["cov"], box)
+
+
+def warm() -> None:
+    """Compile (or load from the cache) every kernel on a small synthetic range image, so that no cloud waits for it:
+    the node's start-up probe calls this whatever its method, and a reload to another method finds them ready."""
+    v, u = np.mgrid[0:12, 0:16].astype(np.float64)
+    grid = np.stack(((u - 8) / 10, (v - 6) / 10, np.ones_like(u)), axis=-1)
+    pitch = [ray_pitch(grid, axis, 1 << 16, 4.0) for axis in (0, 1)]
+    fit = window_pca(grid, pitch[0], pitch[1], 0.3, 0.1)
+    survey(fit["table"], fit["offset"], fit)
 
 
 def window_pca(
@@ -109,7 +151,7 @@ def _summed_area(channels: np.ndarray) -> np.ndarray:
     return table
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ranges(points, ranges, sums, lo, hi):
     """Each pixel's range, NaN at holes, and each row's sums of x, y, z and its count of finite points."""
     for r in range(lo, hi):
@@ -125,7 +167,7 @@ def _ranges(points, ranges, sums, lo, hi):
                 ranges[r, c] = np.nan
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _moments_down(points, ranges, offset, table, lo, hi):
     """The first pass of the moment table, down columns lo..hi: running sums of 1, x, y, z, xx, xy, xz, yy, yz, zz of
     each finite pixel's point minus `offset` (holes add nothing)."""
@@ -148,7 +190,7 @@ def _moments_down(points, ranges, offset, table, lo, hi):
             table[r + 1, c + 1, :] = running
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _sum_down(channels, table, lo, hi):
     for c in range(lo, hi):
         for j in range(channels.shape[2]):
@@ -158,7 +200,7 @@ def _sum_down(channels, table, lo, hi):
                 table[r + 1, c + 1, j] = running
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _sum_across(table, lo, hi):
     for r in range(lo, hi):
         for j in range(table.shape[2]):
@@ -168,7 +210,7 @@ def _sum_across(table, lo, hi):
                 table[r + 1, c + 1, j] = running
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _thresholds(ranges, reach, pitch_row, pitch_col, along_row, along_col, lo, hi):
     """The range step that makes a wall along a row (between columns) and along a column (between rows)."""
     for r in range(lo, hi):
@@ -180,7 +222,7 @@ def _thresholds(ranges, reach, pitch_row, pitch_col, along_row, along_col, lo, h
             along_col[r, c] = _nan_max(ranges[r, c] * by_row, floor)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _row_jumps(ranges, threshold, out, lo, hi):
     """out[r, c] = 1 where the valid pixel at column c and the next valid pixel of its row (at c + 1 or beyond a run
     of holes) differ in range by more than either one's threshold (`windows._jumps`)."""
@@ -196,7 +238,7 @@ def _row_jumps(ranges, threshold, out, lo, hi):
                 following = c
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _column_jumps(ranges, threshold, out, lo, hi):
     """`_row_jumps` down the columns: out[r, c] = 1 between rows r and the next valid row of column c."""
     height = ranges.shape[0]
@@ -211,7 +253,7 @@ def _column_jumps(ranges, threshold, out, lo, hi):
                 following = r
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _nan_max(a, b):
     """torch.maximum: NaN when either is NaN."""
     if np.isnan(a) or np.isnan(b):
@@ -219,7 +261,7 @@ def _nan_max(a, b):
     return max(a, b)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _box(table, top, bottom, left, right, k):
     """Channel k's sum over the inclusive box, from a 3-D summed-area table."""
     return (
@@ -227,13 +269,13 @@ def _box(table, top, bottom, left, right, k):
     )
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _box2(table, top, bottom, left, right):
     """The sum over the inclusive box, from a 2-D summed-area table."""
     return table[bottom + 1, right + 1] - table[top, right + 1] - table[bottom + 1, left] + table[top, left]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _crossed(col_walls, row_walls, top, bottom, left, right):
     """Whether a wall lies strictly inside the box (`windows._WallTable.crossed`)."""
     last_col = max(col_walls.shape[1] - 2, 0)
@@ -250,14 +292,14 @@ def _crossed(col_walls, row_walls, top, bottom, left, right):
     return inner > 0.5
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _box_at(r, c, half_row, half_col, up, down, left, right, level, height, width):
     hr = (half_row * level + SHRINK_LEVELS // 2) // SHRINK_LEVELS
     hc = (half_col * level + SHRINK_LEVELS // 2) // SHRINK_LEVELS
     return max(r - hr * up, 0), min(r + hr * down, height - 1), max(c - hc * left, 0), min(c + hc * right, width - 1)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _largest_clear(r, c, half_row, half_col, up, down, left, right, col_walls, row_walls, height, width):
     """The box at the largest shrink level no wall crosses, and that level (a binary search, as `_largest_clear`)."""
     top, bottom, lft, rgt = _box_at(r, c, half_row, half_col, up, down, left, right, SHRINK_LEVELS, height, width)
@@ -275,7 +317,7 @@ def _largest_clear(r, c, half_row, half_col, up, down, left, right, col_walls, r
     return top, bottom, lft, rgt, lo
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width):
     """The pixel's window: the largest clear centred box, and where a wall cut it below half its reach, the fullest
     of it and the one-sided halves, then (where every half was cut too) the quarters (`_one_sided_where_shrunk`)."""
@@ -301,7 +343,7 @@ def _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width
     return top, bottom, left, right
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _eigen(a00, a01, a02, a11, a12, a22, eigvals, normal):
     """`eigen.smallest_eigenvector` for one matrix: ascending eigenvalues and the smallest one's unit eigenvector
     (NaN where no two rows of A - λ0 I span a plane) into `eigvals` and `normal`."""
@@ -339,7 +381,7 @@ def _eigen(a00, a01, a02, a11, a12, a22, eigvals, normal):
         normal[0] = normal[1] = normal[2] = np.nan
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _pixels(
     table, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, radius,
     normal, eigvals, count, valid, mean, cov, box, flat_reach, lo, hi,
@@ -382,7 +424,7 @@ def _pixels(
             )
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _round_or_zero(x):
     """torch.round (half to even) with NaN as 0, as `_half_widths` rounds."""
     return 0.0 if np.isnan(x) else np.round(x)
@@ -427,7 +469,7 @@ def _quantiles(values: np.ndarray, *qs: float) -> list[float]:
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _angles(grid, out, step_row, step_col, lo, hi):
     """The angle between the rays of each pixel and its neighbour (step_row, step_col) further on, as torch's
     cosine_similarity and atan2 give it (NaN where either is missing)."""
@@ -443,7 +485,7 @@ def _angles(grid, out, step_row, step_col, lo, hi):
             out[r, c] = math.atan2(math.sqrt(max(1 - cos * cos, 0.0)), cos)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _lower_medians(lines, out, lo, hi):
     """torch.nanmedian of each row of `lines`: the lower middle of its finite values, NaN when it has none."""
     buffer = np.empty(lines.shape[1])
@@ -469,7 +511,7 @@ def survey(table: np.ndarray, offset: np.ndarray, fit: dict[str, np.ndarray]) ->
     return normal, z, bend
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _survey(first, offset, pca, eigvals, count, mean, cov, box, reach, normal, z, bend, lo, hi):
     for i in range(lo, hi):
         a00, a01, a02, a11, a12, a22 = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5]
@@ -490,7 +532,7 @@ def _survey(first, offset, pca, eigvals, count, mean, cov, box, reach, normal, z
                                mx - offset[0], my - offset[1], mz - offset[2], nx, ny, nz, cov[i])  # fmt: skip
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _parts(first, offset, top, bottom, left, right, count, reach, cx, cy, cz, nx, ny, nz, cov):
     """(z, bend) of one window's five parts (`hybrid.structure`): the largest height of a part's centroid off the
     plane through the window's centroid with normal n, over its noise standard error and over the reach."""

@@ -11,7 +11,7 @@ axis), not the nearest ``max_nn`` points: on a dense depth frame a nearest-512 p
 ball, while training patches (uniform samples of CAD shapes) see the whole ball. docs/DESIGN.md shows the comparison.
 
 The window size assumes the cloud is in the sensor's frame (sensor at the origin), as drivers publish organized
-clouds. `range_pitch` says whether the cloud looks like that (the plan takes pools from a KD-tree otherwise) and
+clouds. `inspect_grid` says whether the cloud is such a range image (the plan takes other pools otherwise) and
 measures the angular spacing that both this search and the integral-image windows size themselves by.
 """
 
@@ -129,6 +129,8 @@ def inspect_grid(cloud: torch.Tensor, shape: tuple[int, int], pitch: bool = True
     grid = cloud.view(*shape, 3)
     for axis, lines in ((1, "rows"), (0, "columns")):
         broken = scan_line_breaks(grid, axis)
+        if broken is None:
+            return GridCheck(False, None, f"too few neighbouring pixels with a return along its {lines} to tell")
         if broken > MAX_BROKEN_STEPS:
             return GridCheck(False, None, f"{broken:.1%} of the steps along its {lines} leave the scan line (beams "
                              "not destaggered, column-major or shuffled order, or organized by a filter)")
@@ -140,9 +142,15 @@ def inspect_grid(cloud: torch.Tensor, shape: tuple[int, int], pitch: bool = True
     return GridCheck(True, (row, col))
 
 
+def compiled(device_type: str) -> bool:
+    """Whether the organized path runs compiled kernels (`fused.py`) on a device of `device_type`: on a CPU; a GPU
+    runs torch."""
+    return device_type == "cpu"
+
+
 def _pitch(grid: torch.Tensor, axis: int) -> torch.Tensor | None:
     """`ray_pitch`, by the compiled kernel on a CPU (the same medians: test_fused.py), by torch on a GPU."""
-    if grid.device.type != "cpu":
+    if not compiled(grid.device.type):
         return ray_pitch(grid, axis)
     from . import fused
 
@@ -156,12 +164,12 @@ def range_pitch(cloud: torch.Tensor, shape: tuple[int, int]) -> RangePitch | Non
     return inspect_grid(cloud, shape).pitch
 
 
-def scan_line_breaks(grid: torch.Tensor, axis: int) -> float:
+def scan_line_breaks(grid: torch.Tensor, axis: int) -> float | None:
     """The share of steps along `axis` of an (H, W, 3) grid of points (NaN where none), on _CHECKED_LINES of its
     lines, that leave a scan line. A step is one between the rays (directions from the origin) of adjacent pixels; it
     leaves the line when its angle is not within a factor SCAN_STEP_SPREAD of the median step, or when it turns back
     (its direction more than 60° from the previous step's). A sensor's rows and columns have neither; a layout not in
-    sensor order has many."""
+    sensor order has many. None when fewer than 16 steps have a ray at both ends: too few to tell."""
     across = 1 - axis  # the lines: a sample of them shows a layout's breaks, which repeat along every line
     lines = torch.linspace(0, grid.shape[across] - 1, min(grid.shape[across], _CHECKED_LINES), device=grid.device)
     points = grid.index_select(across, lines.round().long().unique()).to(torch.float64)
@@ -172,7 +180,7 @@ def scan_line_breaks(grid: torch.Tensor, axis: int) -> float:
     angle = 2 * torch.asin((step.norm(dim=-1) / 2).clamp(max=1.0))  # NaN where either ray is missing
     known = torch.isfinite(angle)
     if int(known.sum()) < 16:
-        return 1.0
+        return None
     median = angle[known].median()
     jumps = known & ((angle > SCAN_STEP_SPREAD * median) | (angle < median / SCAN_STEP_SPREAD))
     before, after = step.narrow(axis, 0, step.shape[axis] - 1), step.narrow(axis, 1, step.shape[axis] - 1)
@@ -194,7 +202,8 @@ def ray_pitch(grid: torch.Tensor, axis: int) -> torch.Tensor | None:
     if len(valid) < 16:
         return None
     if len(valid) > _PITCH_SAMPLES:
-        valid = valid[torch.linspace(0, len(valid) - 1, _PITCH_SAMPLES, device=valid.device).round().long()]
+        at = torch.linspace(0, len(valid) - 1, _PITCH_SAMPLES, dtype=torch.float64, device=valid.device)
+        valid = valid[at.round().long()]
     low, high = torch.quantile(valid, torch.tensor([0.05, 0.95], dtype=valid.dtype, device=valid.device)).tolist()
     if not (low > 0 and high / low <= MAX_PITCH_SPREAD):
         return None

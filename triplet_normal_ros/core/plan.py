@@ -2,7 +2,7 @@
 
 Every choice the estimator makes about a cloud is made here, by `make_plan`, from its settings and three facts about
 the cloud: the device type, whether it is organized (an image with more than one row) and whether that image is a range
-image in its sensor's frame (`organized.range_pitch`). The estimator executes the returned `Plan`; the node's start-up
+image in its sensor's frame (`organized.inspect_grid`). The estimator executes the returned `Plan`; the node's start-up
 line prints it, `bench` labels its rows with it, and docs/NODE.md's path table is `plan_table()`
 (docs/tools/path_table.py writes it).
 """
@@ -15,7 +15,7 @@ import torch
 
 from .conventions import METHODS, PCA_DEFAULT_K
 from .defaults import shipped_checkpoint
-from .organized import RangePitch, inspect_grid
+from .organized import RangePitch, compiled, inspect_grid
 from .search import is_organized
 from .settings import Settings
 
@@ -96,7 +96,7 @@ def make_plan(settings: Settings, device_type: str, organized: bool, range_image
     window = kernel != "learned" and grid and wants_window
     survey = "window" if window else ("none" if kernel == "learned" else "pool")
     search = "none" if window and kernel == "pca" else _pool_search(settings.neighbours, device_type, organized, grid)
-    engine = "compiled" if window and device_type == "cpu" else "torch"
+    engine = "compiled" if window and compiled(device_type) else "torch"
     return Plan(kernel, survey, search, checkpoint_for(settings, device_type), engine=engine, scan_lines=grid)
 
 

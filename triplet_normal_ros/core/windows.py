@@ -28,7 +28,6 @@ import torch
 from .conventions import MIN_NEIGHBOURS
 from .eigen import smallest_eigenvector
 from .frames import spans_plane
-from .organized import RangePitch
 
 #: A square window of half-width h covers the area of a disc of radius h × 2 / sqrt(pi); windows are sized to the
 #: ball's disc by area, so a plane gets about as many points as the ball would give it.
@@ -78,22 +77,20 @@ class MomentImage:
     """Summed-area tables of an organized cloud's moments, and the windows each pixel may use.
 
     `cloud` (H·W, 3) on the device, NaN where there is no point; `shape` = (H, W); `pitch` the angular spacing of
-    each pixel row and column, measured from the data (`organized.range_pitch`, which also decides whether the cloud
+    each pixel row and column, measured from the data (`organized.inspect_grid`, which also decides whether the cloud
     is a range image at all), so depth cameras of any intrinsics and range images of any LiDAR work without
     calibration.
     """
 
-    def __init__(self, cloud: torch.Tensor, shape: tuple[int, int], pitch: RangePitch, compiled: bool = False) -> None:
+    #: Whether `fused.CompiledImage` computes the windows (it has this interface and the same answers).
+    compiled = False
+
+    def __init__(self, cloud: torch.Tensor, shape: tuple[int, int], pitch: tuple[torch.Tensor, torch.Tensor]) -> None:
         self.height, self.width = shape
         self.device = cloud.device
         points = cloud.to(torch.float64).view(self.height, self.width, 3)
         self.finite = torch.isfinite(points).all(dim=-1)
         self.pitch_row, self.pitch_col = pitch
-        #: Window PCA by the compiled kernel (`fused.py`, CPU only), which builds its own tables in `pca`.
-        self.compiled = compiled and self.device.type == "cpu"
-        if self.compiled:
-            self.cloud = points
-            return
         self.range = torch.where(self.finite, points.norm(dim=-1), torch.nan)
         self.offset = points[self.finite].mean(dim=0) if bool(self.finite.any()) else points.new_zeros(3)
         self.points = torch.where(self.finite.unsqueeze(-1), points - self.offset, 0.0)
@@ -110,8 +107,6 @@ class MomentImage:
         """Window PCA of every pixel at the metric `radius`, with windows that cross no depth discontinuity; with a
         `range_scale` > 0 each pixel's ball grows to max(radius, range_scale × its range) (a spinning LiDAR's rings
         part with range)."""
-        if self.compiled:
-            return self._compiled_pca(radius, range_scale)
         reach = float(radius) if range_scale == 0 else (self.range * range_scale).clamp_min(radius)
         half_row, half_col = self._half_widths(reach)
         walls = _WallTable(self.range, *self._jump_thresholds(reach))
@@ -120,24 +115,6 @@ class MomentImage:
         sums = box_sums(self.table, *box)
         flat = reach if isinstance(reach, float) else torch.nan_to_num(reach.reshape(-1), nan=radius)
         return _window_pca(sums, self.offset, box, flat, self._spans_lines(box, sums[:, 0]))
-
-    def _compiled_pca(self, radius: float, range_scale: float) -> WindowPCA:
-        """`pca` by the compiled kernel: the same windows and answers (test/core/test_fused.py); the tables it built
-        are kept, as `__init__` keeps them for torch, for hybrid's part cue."""
-        from . import fused
-
-        out = fused.window_pca(
-            self.cloud.numpy(), self.pitch_row.numpy(), self.pitch_col.numpy(), float(radius), float(range_scale)
-        )
-        self.table = torch.from_numpy(out["table"])
-        self.counts = self.table[..., :1].contiguous()
-        self.first = self.table[..., :4].contiguous()
-        self.offset = torch.from_numpy(out["offset"])
-        self.fit = out  # the compiled survey (`fused.survey`) reads it as it is
-        t = {name: torch.from_numpy(out[name]) for name in ("normal", "eigvals", "count", "valid", "mean", "cov")}
-        box = tuple(torch.from_numpy(out["box"][i]) for i in range(4))
-        reach = float(radius) if range_scale == 0 else torch.from_numpy(out["reach"])
-        return WindowPCA(t["normal"], t["eigvals"], t["count"], t["valid"], reach, t["mean"], t["cov"], box)
 
     def _spans_lines(self, box: tuple[torch.Tensor, ...], count: torch.Tensor) -> torch.Tensor:
         """Whether each window's points lie on more than one image row and more than one column. A window holds its
