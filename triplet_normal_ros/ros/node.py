@@ -1,8 +1,9 @@
 """The ROS 2 node ``triplet_normal``: PointCloud2 in, the same cloud plus normals and curvature out.
 
 A thin wrapper around :class:`NormalEstimator`. The subscription callback only drops the message into a latest-only
-:class:`Mailbox`; one worker thread estimates and publishes, so a slow estimator skips clouds instead of queueing
-them. See docs/NODE.md for threading, reloads, errors and shutdown.
+:class:`Mailbox`; one worker loop takes the newest cloud, answers it (`pipeline.messages.answer_message`) and
+publishes, so a slow estimator skips clouds instead of queueing them. The installed node runs that loop in the
+process's main thread and spins the executor in another. See docs/NODE.md for threading, reloads, errors and shutdown.
 """
 
 from __future__ import annotations
@@ -99,7 +100,8 @@ class TripletNormalNode(Node):
     """Subscribes to ``input``, publishes ``output``; raises StartupError when it cannot run.
 
     The worker runs in a thread of its own, or, with ``serve_in_caller``, in whoever calls `serve` (the console node
-    calls it from the process's main thread: torch's OpenMP teams are 25-30 % slower in a second thread).
+    calls it from the process's main thread, where torch's OpenMP teams run faster: docs/RESULTS.md, "Organized
+    clouds", the node's overhead).
     """
 
     def __init__(self, serve_in_caller: bool = False, **kwargs: Any) -> None:
@@ -114,6 +116,7 @@ class TripletNormalNode(Node):
         self._mailbox: Mailbox[PointCloud2] = Mailbox()
         self._stats = ProcessingStats()
         self._cancel = threading.Event()
+        self._grid_noted = False  # a grid that is not a range image is reported once (`Plan.note`)
         self._publisher = self.create_publisher(
             PointCloud2,
             "output",
@@ -254,6 +257,14 @@ class TripletNormalNode(Node):
             )
         self._publisher.publish(answer.message)
         self._stats.record((time.perf_counter() - start) * 1e3)
+        self._note_plan(estimator)
+
+    def _note_plan(self, estimator: NormalEstimator) -> None:
+        """Say once when a cloud's grid was not trusted (not a range image), so its pool path's cost is explained."""
+        plan = estimator.last_run.plan
+        if plan is not None and plan.note and not self._grid_noted:
+            self._grid_noted = True
+            self.get_logger().warning(plan.note)
 
     def _report_stats(self) -> None:
         """Close the statistics window: log its line and publish its health on /diagnostics."""
