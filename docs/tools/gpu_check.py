@@ -80,16 +80,18 @@ def cmd_probe(args: argparse.Namespace) -> int:
 
 # -- compare --------------------------------------------------------------------------------------------------------
 
+#: The network methods with the checkpoint both devices load (an empty one would mean lite on the CPU).
+LEARNED, HYBRID = {"method": "learned", "checkpoint": "default"}, {"method": "hybrid", "checkpoint": "default"}
 #: (what, estimator options, CPU search, device search, same neighbourhood on both).
 COMPARISONS = (
     ("pca, window (k = 500)", {"method": "pca"}, "auto", "auto", True),
     ("pca k = 30, kdtree", {"method": "pca", "k": 30}, "kdtree", "kdtree", True),
     ("pca k = 30, voxel vs cpu kdtree", {"method": "pca", "k": 30}, "kdtree", "voxel", True),
-    ("learned, kdtree", {"method": "learned"}, "kdtree", "kdtree", True),
-    ("learned, voxel vs cpu kdtree", {"method": "learned"}, "kdtree", "voxel", True),
-    ("learned, default search on each (grid on a GPU)", {"method": "learned"}, "auto", "auto", False),
-    ("hybrid, kdtree", {"method": "hybrid"}, "kdtree", "kdtree", True),
-    ("hybrid, default search on each (grid on a GPU)", {"method": "hybrid"}, "auto", "auto", False),
+    ("learned, kdtree", LEARNED, "kdtree", "kdtree", True),
+    ("learned, voxel vs cpu kdtree", LEARNED, "kdtree", "voxel", True),
+    ("learned, default search on each (grid on a GPU)", LEARNED, "auto", "auto", False),
+    ("hybrid, kdtree", HYBRID, "kdtree", "kdtree", True),
+    ("hybrid, default search on each (grid on a GPU)", HYBRID, "auto", "auto", False),
 )
 
 

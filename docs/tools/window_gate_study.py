@@ -65,7 +65,7 @@ def frame_arrays(seed: int, learned: NormalEstimator, lite: NormalEstimator) -> 
 
 
 def main() -> None:
-    learned, lite = NormalEstimator("learned"), NormalEstimator("learned", checkpoint="lite")
+    learned, lite = NormalEstimator("learned", checkpoint="default"), NormalEstimator("learned", checkpoint="lite")
     data = [frame_arrays(seed, learned, lite) for seed in SEEDS]
     d = {key: np.concatenate([f[key] for f in data]) for key in data[0]}
     err = {name: angles_rad(d[name], d["truth"]) ** 2 for name in ("learned", "lite", "window", "ray", "pool")}

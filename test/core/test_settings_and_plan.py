@@ -12,6 +12,7 @@ from triplet_normal_ros.core.conventions import METHODS, PCA_DEFAULT_K
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.plan import CLOUDS, make_plan, plan_table
 from triplet_normal_ros.core.settings import Settings, reason
+from triplet_normal_ros.core.throughput import PROBE_SHAPE, probe_cloud
 from triplet_normal_ros.errors import EstimatorError
 from triplet_normal_ros.evaluation.metrics import angles_deg
 
@@ -104,20 +105,27 @@ def test_a_call_may_bring_its_own_settings_but_not_another_model() -> None:
         estimator.estimate(points, settings=estimator.settings.with_values(method="hybrid"))
 
 
-@pytest.mark.parametrize("method", ["hybrid", "learned"])
-def test_one_estimator_serves_two_threads_as_it_serves_one(method: str) -> None:
+@pytest.mark.parametrize(("method", "organized"), [("hybrid", False), ("learned", False), ("hybrid", True)])
+def test_one_estimator_serves_two_threads_as_it_serves_one(method: str, organized: bool) -> None:
     """Two threads share one estimator: one names its points (`point_ids`) and asks for a wider ball, the other does
-    neither. Each must get exactly what the same call gets alone, and neither may raise."""
-    points = _fold_cloud()
+    neither. Each must get exactly what the same call gets alone, and see its own `last_run`, and neither may raise.
+    The organized case runs the compiled windows and their thread pool from both threads at once."""
+    if organized:
+        points, shape, radius = probe_cloud(0.05), PROBE_SHAPE, 0.05
+    else:
+        points, shape, radius = _fold_cloud(), None, 0.15
     ids = np.arange(len(points)) * 7 + 3
-    estimator = NormalEstimator(method, radius=0.15, device="cpu", checkpoint="lite")
-    wide = estimator.settings.with_values(radius=0.2)
+    estimator = NormalEstimator(method, radius=radius, device="cpu", checkpoint="lite")
+    wide = estimator.settings.with_values(radius=radius * 1.5)
     calls = {
-        "named": lambda: estimator.estimate(points, point_ids=ids, settings=wide),
-        "plain": lambda: estimator.estimate(points),
+        "named": lambda: estimator.estimate(points, point_ids=ids, settings=wide, shape=shape),
+        "plain": lambda: estimator.estimate(points, shape=shape),
     }
-    alone = {name: call() for name, call in calls.items()}
-    runs = {name: estimator.last_run.network for name in calls}
+    alone, runs = {}, {}
+    for name, call in calls.items():
+        alone[name] = call()
+        runs[name] = estimator.last_run.network
+    assert (estimator.last_run.search == "window") == organized
     results: dict[str, list] = {name: [] for name in calls}
     errors: list[BaseException] = []
     start = threading.Barrier(2)
@@ -137,10 +145,13 @@ def test_one_estimator_serves_two_threads_as_it_serves_one(method: str) -> None:
         thread.join()
     assert not errors, errors
     assert runs["plain"] > 0  # the network ran, so the shared model and the call state were exercised
+    if method == "hybrid":  # the wider ball opens the gate elsewhere: each thread's count is its own
+        assert runs["named"] != runs["plain"]
     for name in calls:
-        for (normals, curvature), _network in results[name]:
+        for (normals, curvature), network in results[name]:
             np.testing.assert_array_equal(normals, alone[name][0])
             np.testing.assert_array_equal(curvature, alone[name][1])
+            assert network == runs[name]  # each thread reads its own call's run
     assert not np.array_equal(alone["named"][0], alone["plain"][0])  # the two calls really differ
 
 

@@ -53,7 +53,7 @@ def scores() -> dict[str, np.ndarray]:
 
 def test_the_cpu_default_is_hybrid_with_the_lite_checkpoint_at_the_depth_radius() -> None:
     estimator = node_estimator({"device": "cpu"})
-    assert (estimator.method, estimator.radius) == ("hybrid", 0.05)
+    assert (estimator.method, estimator.radius, estimator.checkpoint) == ("hybrid", 0.05, "lite")
 
 
 def test_the_cpu_default_holds_its_measured_error_overall_and_near_edges(scores) -> None:

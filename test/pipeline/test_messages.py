@@ -135,6 +135,7 @@ def test_an_organized_frame_of_a_plane_gets_its_exact_normal_and_holes_stay_hole
     assert (normals[~holes] @ normal > 0).all()  # facing the camera
     assert angles_deg(normals[~holes], np.broadcast_to(normal, normals[~holes].shape)).max() < TOLERANCE_DEG
     assert (answer.finite, answer.known) == (len(points) - 1, len(points) - 2)
+    assert estimator.last_run.plan.survey == "window"  # the organized path, not pools
 
 
 def test_a_point_at_the_origin_is_a_no_return_unless_told_otherwise(pca: NormalEstimator) -> None:

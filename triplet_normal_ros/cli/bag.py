@@ -125,11 +125,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 def resolve_checkpoint(args: argparse.Namespace) -> None:
-    """An absent --checkpoint means the node's: the shipped one for the device (`defaults.shipped_checkpoint`)."""
+    """An absent --checkpoint means the node's: the shipped one for the device (`plan.checkpoint_for`), named once so
+    that every worker of `bags` loads the same one."""
     if args.checkpoint is None and args.method != "pca":
         from ..core.device import device_type
+        from ..core.plan import checkpoint_for
+        from ..core.settings import Settings
 
-        args.checkpoint = defaults.shipped_checkpoint(device_type(args.device))
+        args.checkpoint = checkpoint_for(Settings(method=args.method, device=args.device), device_type(args.device))
 
 
 def convert(args: argparse.Namespace, estimator=None) -> tuple[int, str]:

@@ -32,7 +32,7 @@ PCA_CHUNK = 16384
 
 #: `pool_normals` hands a pool to eigh when its two smallest eigenvalues lie closer than this fraction of the trace:
 #: there the closed form's normal drifts from eigh's (1e-12 at 1e-3 on a depth frame, growing as the gap closes), and
-#: at 0 (a line, coincident points, an isotropic blob) only eigh's choice of axis is the old answer.
+#: at 0 (a line, coincident points, an isotropic blob) only eigh's choice of axis matches `pool_pca`'s.
 EIGEN_GAP = 1e-3
 
 #: A chunk kernel: (call, cloud, centres, pools, rows, radius) -> (normals, curvature) as numpy, NaN where unknown.

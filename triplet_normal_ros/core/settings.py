@@ -63,15 +63,7 @@ def reason(name: str, value: Any) -> str | None:
     return None if check is None else check(name, value)
 
 
-def checked(name: str, value: Any) -> Any:
-    """`value`, or an EstimatorError with the reason it is refused."""
-    why = reason(name, value)
-    if why:
-        raise EstimatorError(why)
-    return value
-
-
-def _is_real(value: object) -> bool:
+def is_real(value: object) -> bool:
     """A real number that is not a bool (a YAML `true` is no radius)."""
     return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
 
@@ -90,7 +82,7 @@ def _choice(options: tuple[str, ...]):
 
 
 def _radius(name: str, value: Any) -> str | None:
-    if not (_is_real(value) and math.isfinite(value) and value > 0):
+    if not (is_real(value) and math.isfinite(value) and value > 0):
         return f"{name} must be a finite number > 0 (metres), got {value!r}"
     return None
 
@@ -117,13 +109,13 @@ def _seed(name: str, value: Any) -> str | None:
 
 def _threshold(name: str, value: Any) -> str | None:
     what = {"gate": "F statistic (a z threshold on organized clouds)", "bend": "fraction of the radius"}[name]
-    if not (_is_real(value) and math.isfinite(value) and value >= 0):
+    if not (is_real(value) and math.isfinite(value) and value >= 0):
         return f"{name} must be a finite {what} >= 0, got {value!r}"
     return None
 
 
 def _range_scale(name: str, value: Any) -> str | None:
-    if not (_is_real(value) and math.isfinite(value) and 0 <= value <= 1):
+    if not (is_real(value) and math.isfinite(value) and 0 <= value <= 1):
         return f"{name} must be a number in [0, 1], got {value!r}"
     return None
 

@@ -1,7 +1,7 @@
 """One sensor_msgs/PointCloud2 in, the same cloud with normals out: the step the node and `triplet-normal bag` share.
 
-Both used to decode the message, run `core.cloud.estimate_cloud` with their own copy of the settings and encode the
-answer; written once here, a cloud recorded in a bag and the same cloud sent to the node get the same bytes back.
+Decoding the message, `core.cloud.estimate_cloud` with the message's settings snapshot and encoding the answer are
+written once here, so a cloud recorded in a bag and the same cloud sent to the node get the same bytes back.
 The function is ROS-free: it takes any object with PointCloud2's fields (rclpy's message, or a bag's message read as
 one, `io.bags.as_message`) and returns a sensor_msgs PointCloud2 built by `io.pointcloud2`.
 
@@ -20,7 +20,7 @@ import numpy as np
 from ..core import defaults
 from ..core.cloud import estimate_cloud
 from ..core.estimator import NormalEstimator
-from ..core.settings import Settings
+from ..core.settings import Settings, is_real
 from ..errors import EstimatorError
 from ..io.pointcloud2 import empty_with_normals, read_xyz, with_normals
 
@@ -97,6 +97,5 @@ def _as_list(value: Any) -> list | None:
 
 
 def _is_finite_number(value: object) -> bool:
-    """A finite real number that is not a bool (a YAML `true` is no coordinate)."""
-    real = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
-    return real and math.isfinite(value)
+    """A finite real number that is not a bool (`settings.is_real`: a YAML `true` is no coordinate)."""
+    return is_real(value) and math.isfinite(value)
