@@ -87,8 +87,15 @@ def results_file(path) -> None:
         raise UsageError(f"--out {path}: directory {path.parent} does not exist")
 
 
-def add_hybrid_options(p: argparse.ArgumentParser) -> None:
-    """--gate and --bend: hybrid's two thresholds, for every subcommand that builds an estimator."""
+def add_network_options(p: argparse.ArgumentParser) -> None:
+    """--batch-size, and hybrid's two thresholds --gate and --bend: for every subcommand that builds an estimator."""
+    p.add_argument(
+        "--batch-size",
+        type=int,
+        default=defaults.BATCH_SIZE,
+        metavar="B",
+        help=f"patches per network call (default {defaults.BATCH_SIZE})",
+    )
     p.add_argument(
         "--gate",
         type=float,

@@ -78,14 +78,7 @@ def add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--device", default=defaults.DEVICE, metavar="D", help=f"auto, cpu, cuda or cuda:N (default {defaults.DEVICE})"
     )
-    p.add_argument(
-        "--batch-size",
-        type=int,
-        default=defaults.BATCH_SIZE,
-        metavar="B",
-        help=f"patches per network call (default {defaults.BATCH_SIZE})",
-    )
-    checks.add_hybrid_options(p)
+    checks.add_network_options(p)
     p.add_argument(
         "--neighbours",
         choices=NEIGHBOUR_SEARCHES,

@@ -59,14 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--viewpoint", type=float, nargs=3, metavar=("X", "Y", "Z"), help="orient: flip normals to face this point"
     )
-    p.add_argument(
-        "--batch-size",
-        type=int,
-        default=defaults.BATCH_SIZE,
-        metavar="B",
-        help=f"patches per network call (default {defaults.BATCH_SIZE})",
-    )
-    checks.add_hybrid_options(p)
+    checks.add_network_options(p)
     checks.add_sensor_options(p)
     where = p.add_mutually_exclusive_group()
     where.add_argument(
