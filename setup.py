@@ -17,9 +17,9 @@ setup(
         (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml") + glob("config/*.xml"))),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
-    install_requires=["setuptools", "numpy", "scipy", "numba", "torch", "safetensors", "tqdm"],
+    install_requires=["setuptools", "numpy", "scipy", "numba", "torch", "tqdm"],
     extras_require={
-        "test": ["pytest", "hypothesis"],
+        "test": ["pytest", "hypothesis", "safetensors"],
         "train": ["trimesh", "manifold3d", "rtree", "tqdm", "matplotlib"],
         "io": ["pypcd4", "rosbags"],
     },

@@ -6,11 +6,10 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from safetensors import SafetensorError, safe_open
-from safetensors.torch import save_file
 
 from .. import __version__
 from ..errors import CheckpointError
+from . import tensorfile
 from .conventions import checkpoint_conventions
 from .model import TripletNormalNet
 
@@ -56,7 +55,7 @@ def save_checkpoint(path: str | Path, model: TripletNormalNet, metadata: dict[st
     }
     tensors = {name: t.detach().to("cpu").contiguous() for name, t in model.state_dict().items()}
     tmp = path.with_suffix(path.suffix + ".tmp")
-    save_file(tensors, str(tmp), metadata={_META_KEY: json.dumps(meta, sort_keys=True)})
+    tensorfile.write(tmp, tensors, {_META_KEY: json.dumps(meta, sort_keys=True)})
     tmp.replace(path)
     return path
 
@@ -65,9 +64,8 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
     """The JSON metadata alone, without building the model."""
     path = _existing(path)
     try:
-        with safe_open(str(path), framework="pt") as handle:
-            header = handle.metadata() or {}
-    except (SafetensorError, OSError, ValueError) as error:
+        header = tensorfile.read_metadata(path)
+    except OSError as error:
         raise CheckpointError(f"{path} is not a safetensors checkpoint ({error})") from None
     if _META_KEY not in header:
         raise CheckpointError(f"{path} is a safetensors file without triplet_normal metadata")
@@ -103,10 +101,9 @@ def load_checkpoint(path: str | Path, device: torch.device | str = "cpu") -> tup
     meta = read_metadata(path)
     try:
         model = TripletNormalNet.from_config(meta["architecture"])
-        with safe_open(str(path), framework="pt") as handle:
-            state = {name: handle.get_tensor(name) for name in handle.keys()}  # noqa: SIM118
+        _, state = tensorfile.read(path)
         model.load_state_dict(state, strict=True)
-    except (KeyError, TypeError, ValueError, IndexError, RuntimeError, SafetensorError) as error:
+    except (KeyError, TypeError, ValueError, IndexError, RuntimeError, OSError) as error:
         raise CheckpointError(f"{path} does not match the model it describes ({_one_line(error)})") from None
     return model.to(device).eval(), meta
 
