@@ -21,7 +21,7 @@ from typing import Any
 import pytest
 
 from triplet_normal_ros.ros.node_process import params_file
-from triplet_normal_ros.ros.transport import PROFILE_ENV, choose_profile
+from triplet_normal_ros.ros.transport import PROFILE_ENVS, choose_profile
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = "triplet_normal_ros"
@@ -59,9 +59,10 @@ def pytest_configure(config: pytest.Config) -> None:
     # so the shipped one is set here, before any test's rclpy context (docs/NODE.md, Transport).
     environ = dict(os.environ)
     choose_profile(environ)
-    if PROFILE_ENV in environ and PROFILE_ENV not in os.environ:
-        _ENV_PATCH.setenv(PROFILE_ENV, environ[PROFILE_ENV])
-        _PROFILE_SET_HERE.append(environ[PROFILE_ENV])
+    for name in PROFILE_ENVS:
+        if name in environ and name not in os.environ:
+            _ENV_PATCH.setenv(name, environ[name])
+            _PROFILE_SET_HERE.append(environ[name])
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
@@ -134,7 +135,7 @@ class NodeProcess:
             args += ["-r", f"{name}:={target}"]
         self._log = self.log_path.open("w")
         # The node picks its Fast DDS profile itself, unless the user chose one for the whole run.
-        node_env = {k: v for k, v in env.items() if not (k == PROFILE_ENV and v in _PROFILE_SET_HERE)}
+        node_env = {k: v for k, v in env.items() if not (k in PROFILE_ENVS and v in _PROFILE_SET_HERE)}
         self.proc = subprocess.Popen(
             args, env=node_env, stdout=self._log, stderr=subprocess.STDOUT, cwd=log_path.parent
         )

@@ -2,10 +2,10 @@
 
 The node runs with its default parameters (only ``method: pca``, as a learned or hybrid full frame takes minutes on
 a CPU) and no QoS override: it subscribes best effort (sensor data) and loads the shipped Fast DDS profile itself
-(the test's NodeProcess strips FASTDDS_DEFAULT_PROFILES_FILE from its environment). This test process is the camera
-driver: its publisher is best effort as a driver's is, or reliable, and it carries the same profile (conftest sets it
-for the process, as a user exports it for the driver). That is what the profile promises; a driver without it loses
-every best-effort cloud above about 0.5 MB whatever the node does (docs/RESULTS.md, "Full-size clouds over DDS").
+(the test's NodeProcess strips the profile variables it set from the node's environment). This test process is the
+camera driver: its publisher is best effort as a driver's is, or reliable, and it carries the same profile (conftest
+sets it for the process, as a user exports it for the driver). That is what the profile promises; a driver without it
+loses every best-effort cloud above about 0.5 MB whatever the node does (docs/RESULTS.md, "Full-size clouds over DDS").
 Every frame is sent once, never resent, and must be answered.
 """
 

@@ -7,6 +7,8 @@ from pathlib import Path
 
 from triplet_normal_ros.ros.transport import (
     CWD_PROFILE,
+    CWD_PROFILES,
+    LEGACY_PROFILE_ENV,
     OPT_OUT_ENV,
     PROFILE_ENV,
     PROFILE_NAME,
@@ -21,22 +23,29 @@ NS = "{http://www.eprosima.com}"
 def test_the_shipped_profile_is_found_and_set(tmp_path: Path) -> None:
     environ: dict[str, str] = {}
     choice = choose_profile(environ, cwd=tmp_path)
-    assert environ == {PROFILE_ENV: choice.path} and Path(choice.path).name == PROFILE_NAME
+    # Fast DDS 3 (Kilted) reads the first variable, Fast DDS 2 (Jazzy) the second: both name the shipped file
+    assert environ == {PROFILE_ENV: choice.path, LEGACY_PROFILE_ENV: choice.path}
+    assert Path(choice.path).name == PROFILE_NAME
     assert not choice.warning and "shipped" in choice.describe("rmw_fastrtps_cpp")
 
 
 def test_the_users_profile_file_is_kept(tmp_path: Path) -> None:
-    environ = {PROFILE_ENV: "/robot/fastdds.xml"}
-    choice = choose_profile(environ, cwd=tmp_path)
-    assert environ == {PROFILE_ENV: "/robot/fastdds.xml"}
-    expected = f"transport: Fast DDS profile /robot/fastdds.xml (yours, from {PROFILE_ENV})"
-    assert choice.describe("rmw_fastrtps_cpp") == expected
+    for name in (PROFILE_ENV, LEGACY_PROFILE_ENV):  # a Kilted user's variable or a Jazzy user's
+        environ = {name: "/robot/fastdds.xml"}
+        choice = choose_profile(environ, cwd=tmp_path)
+        assert environ == {PROFILE_ENV: "/robot/fastdds.xml", LEGACY_PROFILE_ENV: "/robot/fastdds.xml"}
+        expected = f"transport: Fast DDS profile /robot/fastdds.xml (yours, from {name})"
+        assert choice.describe("rmw_fastrtps_cpp") == expected
 
 
 def test_a_profile_in_the_working_directory_is_kept_unless_fast_dds_skips_it(tmp_path: Path) -> None:
+    for name in CWD_PROFILES:  # Fast DDS 3's name, then Fast DDS 2's, each alone in its folder
+        folder = tmp_path / name.split("_")[1]
+        folder.mkdir()
+        (folder / name).write_text("<dds/>")
+        environ: dict[str, str] = {}
+        assert choose_profile(environ, cwd=folder).path == str(folder / name) and environ == {}
     (tmp_path / CWD_PROFILE).write_text("<dds/>")
-    environ: dict[str, str] = {}
-    assert choose_profile(environ, cwd=tmp_path).path == str(tmp_path / CWD_PROFILE) and environ == {}
     environ = {"SKIP_DEFAULT_XML_FILE": "1"}
     assert choose_profile(environ, cwd=tmp_path).path == str(shipped_profile())
 

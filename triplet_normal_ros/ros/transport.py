@@ -2,11 +2,13 @@
 
 Fast DDS's default shared-memory segment (512 kB per process) loses best-effort clouds above about 0.5 MB, so a
 640x480 cloud from a camera driver never arrives (docs/RESULTS.md, "Full-size clouds over DDS"). The shipped profile,
-``config/fastdds_large_data.xml``, gives the segment 32 MB. Fast DDS reads ``FASTDDS_DEFAULT_PROFILES_FILE`` once per
-process, when rclpy.init creates the first participant, so :func:`choose_profile` must run before that. It changes
-nothing when the user has chosen: their own ``FASTDDS_DEFAULT_PROFILES_FILE``, a ``DEFAULT_FASTDDS_PROFILES.xml`` in the
-working directory (which Fast DDS loads by itself), or ``TRIPLET_NORMAL_FASTDDS_PROFILE=off``. No rclpy here: the
-node, the demo's replay client and the tests' process all call it.
+``config/fastdds_large_data.xml``, gives the segment 32 MB. Fast DDS reads its profile file's variable once per
+process, when rclpy.init creates the first participant, so :func:`choose_profile` must run before that. Fast DDS 3
+(Kilted) reads ``FASTDDS_DEFAULT_PROFILES_FILE`` and Fast DDS 2 (Jazzy, Humble) ``FASTRTPS_DEFAULT_PROFILES_FILE``;
+both are set to the same file, so the profile applies whichever a distribution ships. It changes nothing when the user
+has chosen: either variable (copied to the other), a default profile file in the working directory (which Fast DDS
+loads by itself), or ``TRIPLET_NORMAL_FASTDDS_PROFILE=off``. No rclpy here: the node, the demo's replay client and the
+tests' process all call it.
 """
 
 from __future__ import annotations
@@ -18,12 +20,16 @@ from pathlib import Path
 
 PACKAGE = "triplet_normal_ros"
 PROFILE_NAME = "fastdds_large_data.xml"
-#: What Fast DDS 3 (rmw_fastrtps_cpp 9.x, Kilted) reads for its XML profiles.
+#: What Fast DDS 3 (rmw_fastrtps_cpp 9.x, Kilted) reads for its XML profiles ...
 PROFILE_ENV = "FASTDDS_DEFAULT_PROFILES_FILE"
+#: ... and what Fast DDS 2 (rmw_fastrtps_cpp 8.x, Jazzy) reads.
+LEGACY_PROFILE_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
+PROFILE_ENVS = (PROFILE_ENV, LEGACY_PROFILE_ENV)
 #: ``off`` leaves Fast DDS at its defaults.
 OPT_OUT_ENV = "TRIPLET_NORMAL_FASTDDS_PROFILE"
-#: Fast DDS also loads this file from the working directory, unless SKIP_DEFAULT_XML_FILE=1.
+#: Fast DDS also loads this file from the working directory, unless SKIP_DEFAULT_XML_FILE=1 (Fast DDS 2: the second).
 CWD_PROFILE = "DEFAULT_FASTDDS_PROFILES.xml"
+CWD_PROFILES = (CWD_PROFILE, "DEFAULT_FASTRTPS_PROFILES.xml")
 
 
 @dataclass(frozen=True)
@@ -67,10 +73,15 @@ def shipped_profile() -> Path | None:
 def _users_choice(environ: MutableMapping[str, str], cwd: Path) -> ProfileChoice | None:
     if environ.get(OPT_OUT_ENV, "").lower() in ("off", "0", "false", "no"):
         return ProfileChoice(None, f"{OPT_OUT_ENV}={environ[OPT_OUT_ENV]}", warning=True)
-    if environ.get(PROFILE_ENV):
-        return ProfileChoice(environ[PROFILE_ENV], f"yours, from {PROFILE_ENV}")
-    if environ.get("SKIP_DEFAULT_XML_FILE") != "1" and (cwd / CWD_PROFILE).is_file():
-        return ProfileChoice(str(cwd / CWD_PROFILE), "yours, from the working directory")
+    for name in PROFILE_ENVS:
+        if environ.get(name):
+            path = environ[name]
+            for other in PROFILE_ENVS:  # the same file for whichever Fast DDS this distribution ships
+                environ.setdefault(other, path)
+            return ProfileChoice(path, f"yours, from {name}")
+    for name in CWD_PROFILES:
+        if environ.get("SKIP_DEFAULT_XML_FILE") != "1" and (cwd / name).is_file():
+            return ProfileChoice(str(cwd / name), "yours, from the working directory")
     return None
 
 
@@ -83,7 +94,8 @@ def choose_profile(environ: MutableMapping[str, str] | None = None, cwd: Path | 
     path = shipped_profile()
     if path is None:
         return ProfileChoice(None, f"the shipped {PROFILE_NAME} was not found", warning=True)
-    environ[PROFILE_ENV] = str(path)
+    for name in PROFILE_ENVS:
+        environ[name] = str(path)
     return ProfileChoice(
         str(path), "shipped; a best-effort driver needs it too for clouds over 0.5 MB, see docs/NODE.md, Transport"
     )
