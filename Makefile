@@ -1,4 +1,5 @@
-# User-facing targets: `make demo`, `make test` and `make test-fast`. Each refreshes .venv/ through `make venv`.
+# User-facing targets: `make demo`, `make test` and `make test-fast`. Each refreshes .venv/ through `make venv`;
+# `make test` also tests on ROS 2 Jazzy in .venv-jazzy/ (`make test-jazzy`).
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
@@ -8,18 +9,21 @@ STAMP := $(VENV)/.installed
 # Every dependency, pinned. torch==2.13.0 is whatever build pip finds first: here the local CPU wheel (/opt/wheels),
 # elsewhere PyPI's CUDA build (several GB). README, "Which torch", says how to choose the CPU or CUDA build.
 # setuptools<80: newer releases silently break `colcon build --symlink-install`.
-PINS := \
+# ROS 2 comes from PyPI wheels: Kilted in .venv/, Jazzy (the LTS; Fast DDS 2) in .venv-jazzy/.
+KILTED := ros-rclpy==9.1.2 ros-sensor-msgs==5.5.1 ros-rmw-fastrtps-cpp==9.3.3 ros-diagnostic-msgs==5.5.1
+JAZZY := ros-rclpy==7.1.6 ros-sensor-msgs==5.3.6 ros-rmw-fastrtps-cpp==8.4.3 ros-diagnostic-msgs==5.3.6
+COMMON := \
 	torch==2.13.0 \
 	numpy==2.4.6 scipy==1.17.1 numba==0.68.1 llvmlite==0.50.0 \
-	ros-rclpy==9.1.2 ros-sensor-msgs==5.5.1 ros-rmw-fastrtps-cpp==9.3.3 ros-diagnostic-msgs==5.5.1 \
 	colcon-core==0.21.3 colcon-ros==0.5.0 colcon-python-setup-py==0.2.9 colcon-bash==0.5.0 \
 	"setuptools<80" \
 	rosbags==0.11.9 safetensors==0.8.0 trimesh==5.2.0 manifold3d==3.5.4 rtree==1.4.1 pypcd4==1.5.1 \
 	tqdm==4.70.1 matplotlib==3.11.2 \
 	ray==2.60.0 \
 	pytest==9.2.0 hypothesis==6.170.15 ruff==0.17.6
+PINS := $(COMMON) $(KILTED)
 
-.PHONY: venv demo test test-fast lint bench eval train clean
+.PHONY: venv venv-jazzy demo test test-jazzy test-fast lint bench eval train clean
 
 venv: $(STAMP)
 
@@ -38,6 +42,21 @@ $(STAMP): Makefile setup.py package.xml
 		|| { cat $(VENV)/install.log; exit 1; }
 	@touch $(STAMP)
 
+# The same, with Jazzy's wheels: what a Jazzy robot runs (rclpy 7, Fast DDS 2, messages 5.3).
+JAZZY_VENV := .venv-jazzy
+JAZZY_PY := $(JAZZY_VENV)/bin/python
+JAZZY_STAMP := $(JAZZY_VENV)/.installed
+venv-jazzy: $(JAZZY_STAMP)
+$(JAZZY_STAMP): Makefile setup.py package.xml
+	@echo "make venv-jazzy: virtual environment with ROS 2 Jazzy's wheels in $(JAZZY_VENV)/"
+	@test -x $(JAZZY_PY) || $(PYTHON) -m venv $(JAZZY_VENV)
+	@$(JAZZY_PY) -m pip install -q --upgrade pip
+	@$(JAZZY_PY) -m pip install -q $(COMMON) $(JAZZY)
+	@$(JAZZY_PY) -m pip install -q --no-deps --no-build-isolation -e . --config-settings editable_mode=compat \
+		>$(JAZZY_VENV)/install.log 2>&1 \
+		|| { cat $(JAZZY_VENV)/install.log; exit 1; }
+	@touch $(JAZZY_STAMP)
+
 # `make demo`: colcon-build into out/ws, run the installed node, replay the shipped Kinect frames, draw out/*.png.
 WS := out/ws
 demo: venv
@@ -55,6 +74,14 @@ lint: venv
 # training runs, accuracy checks of the shipped checkpoint, eval --quick, CLI subprocesses).
 test: venv lint
 	$(PY) -m pytest test -q --strict-markers
+	@$(MAKE) --no-print-directory test-jazzy
+
+# `make test-jazzy`: on Jazzy, what differs between distributions: the colcon-built node as a process, its transport
+# (full 640x480 frames from another process), parameters, the launch file, the per-message step and `bag`.
+JAZZY_TESTS := test/ros/test_transport.py test/ros/test_large_clouds.py test/ros/test_node_process.py \
+	test/ros/test_params.py test/ros/test_one_rule.py test/test_launch.py test/pipeline test/cli/test_bag.py
+test-jazzy: venv-jazzy
+	$(JAZZY_PY) -m pytest $(JAZZY_TESTS) -q --strict-markers
 
 # `make test-fast`: the tests not marked `slow`, for the edit-test loop; `make test` before committing.
 test-fast: venv
@@ -71,4 +98,4 @@ bench: venv
 	$(VENV)/bin/triplet-normal bench --out docs/RESULTS.md
 
 clean:
-	rm -rf $(VENV) build install log out .pytest_cache .hypothesis .ruff_cache
+	rm -rf $(VENV) $(JAZZY_VENV) build install log out .pytest_cache .hypothesis .ruff_cache
