@@ -105,7 +105,7 @@ def window_pca(
     _bands(_thresholds, height, ranges, reach, rows, cols, along_row, along_col)
     col_jumps, row_jumps = np.zeros((height, max(width - 1, 0), 1)), np.zeros((max(height - 1, 0), width, 1))
     _bands(_row_jumps, height, ranges, along_row, col_jumps)
-    _bands(_column_jumps, width, ranges, along_col, row_jumps)
+    _bands(_row_jumps, width, ranges.T, along_col.T, row_jumps.transpose(1, 0, 2))  # down the columns
     col_walls, row_walls = _summed_area(col_jumps)[..., 0], _summed_area(row_jumps)[..., 0]
     n = height * width
     fit = {
@@ -225,7 +225,8 @@ def _thresholds(ranges, reach, pitch_row, pitch_col, along_row, along_col, lo, h
 @njit(cache=True, nogil=True, error_model="numpy")
 def _row_jumps(ranges, threshold, out, lo, hi):
     """out[r, c] = 1 where the valid pixel at column c and the next valid pixel of its row (at c + 1 or beyond a run
-    of holes) differ in range by more than either one's threshold (`windows._jumps`)."""
+    of holes) differ in range by more than either one's threshold (`windows._jumps`). Given the transposed views, the
+    same walk runs down the columns."""
     width = ranges.shape[1]
     for r in range(lo, hi):
         following = -1
@@ -236,21 +237,6 @@ def _row_jumps(ranges, threshold, out, lo, hi):
                 ):
                     out[r, c, 0] = 1.0
                 following = c
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _column_jumps(ranges, threshold, out, lo, hi):
-    """`_row_jumps` down the columns: out[r, c] = 1 between rows r and the next valid row of column c."""
-    height = ranges.shape[0]
-    for c in range(lo, hi):
-        following = -1
-        for r in range(height - 1, -1, -1):
-            if np.isfinite(ranges[r, c]):
-                if following >= 0 and abs(ranges[r, c] - ranges[following, c]) > max(
-                    threshold[r, c], threshold[following, c]
-                ):
-                    out[r, c, 0] = 1.0
-                following = r
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
