@@ -52,6 +52,10 @@ JOIN_TIMEOUT_S = 1.5
 SERVE_POLL_S = 0.1
 #: How long shutdown waits for the executor thread (one spin timeout and its own shutdown, with room to spare).
 EXECUTOR_JOIN_S = 2.0
+#: The process's exit codes, so that a supervisor can tell them apart: an orderly shutdown after SIGINT or SIGTERM; a
+#: node that could not start (or whose executor failed); a worker still inside an uncancellable step JOIN_TIMEOUT_S
+#: after the signal, left behind by the watchdog.
+EXIT_OK, EXIT_FAILED, EXIT_ABANDONED = 0, 1, 2
 
 _PARAM_TYPES = {
     str: Parameter.Type.STRING,
@@ -324,20 +328,26 @@ def _wake_on_signal(receiver: socket.socket, on_stop, sender: socket.socket) -> 
 
 #: The watchdog started by the first stop signal (at most one).
 _WATCHDOG: list[threading.Timer] = []
+_WATCHDOG_LOCK = threading.Lock()
 
 
 def _start_watchdog(node: TripletNormalNode) -> None:
-    if not _WATCHDOG:
-        timer = threading.Timer(JOIN_TIMEOUT_S, _abandon, args=(node,))
-        timer.daemon = True
-        _WATCHDOG.append(timer)
-        timer.start()
+    """Start the watchdog once: the signal handler and the wakeup thread may both ask for it."""
+    with _WATCHDOG_LOCK:
+        if not _WATCHDOG:
+            timer = threading.Timer(JOIN_TIMEOUT_S, _abandon, args=(node,))
+            timer.daemon = True
+            _WATCHDOG.append(timer)
+            timer.start()
 
 
-def _abandon(node: TripletNormalNode) -> None:
-    """The estimate did not reach a cancel check in time: say so and leave without waiting for it."""
-    node.get_logger().warning(f"worker still busy after {JOIN_TIMEOUT_S} s; exiting without waiting for it")
-    _exit_now(0)
+def _abandon(node: TripletNormalNode) -> NoReturn:
+    """The estimate did not reach a cancel check in time: say so and leave without waiting for it, with a code of
+    its own, since an estimate was cut off unfinished and nothing was shut down in order."""
+    node.get_logger().error(
+        f"worker still busy after {JOIN_TIMEOUT_S} s; exiting {EXIT_ABANDONED} without waiting for it"
+    )
+    _exit_now(EXIT_ABANDONED)
 
 
 def _spin(node: TripletNormalNode, stop: threading.Event, failed: list[BaseException]) -> None:
@@ -358,7 +368,8 @@ def _spin(node: TripletNormalNode, stop: threading.Event, failed: list[BaseExcep
 
 
 def main(args: list[str] | None = None) -> NoReturn:
-    """Console entry point ``node``: exit 0 after a signal-driven shutdown, 1 when the node cannot start."""
+    """Console entry point ``node``: exit 0 after a signal-driven shutdown, 1 when the node cannot start, 2 when the
+    watchdog left a busy worker behind (`EXIT_OK`, `EXIT_FAILED`, `EXIT_ABANDONED`)."""
     _exit_now(_run(args))
 
 
@@ -370,7 +381,7 @@ def _run(args: list[str] | None) -> int:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as error:  # rcl rejects malformed --ros-args with its own exception type
         print(f"[FATAL] [{NODE_NAME}]: cannot start: {error}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     _log_transport(profile)
     node: TripletNormalNode | None = None
     spinner: threading.Thread | None = None
@@ -384,13 +395,13 @@ def _run(args: list[str] | None) -> int:
         spinner.start()
         node.serve(stop)  # estimates in this, the main, thread until a signal
         spinner.join(EXECUTOR_JOIN_S)
-        return 1 if failed else 0
+        return EXIT_FAILED if failed else EXIT_OK
     except StartupError as error:
         get_logger(NODE_NAME).fatal(f"cannot start: {error}")
-        return 1
+        return EXIT_FAILED
     except (RuntimeError, ValueError) as error:  # e.g. rclpy rejecting a QoS override given on the command line
         get_logger(NODE_NAME).fatal(f"cannot start: {error}")
-        return 1
+        return EXIT_FAILED
     finally:
         stop.set()
         for timer in _WATCHDOG:
