@@ -14,7 +14,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -123,16 +123,25 @@ def params_yaml(
 
 
 class NodeProcess:
-    """The installed ``node`` executable running in its own process, its output captured to a file."""
+    """An installed executable (``node`` unless told) running in its own process, its output captured to a file;
+    ``extra_args`` follow the parameter file and remaps inside ``--ros-args``."""
 
     def __init__(
-        self, prefix: Path, env: Mapping[str, str], params_file: Path, remaps: Mapping[str, str], log_path: Path
+        self,
+        prefix: Path,
+        env: Mapping[str, str],
+        params_file: Path,
+        remaps: Mapping[str, str],
+        log_path: Path,
+        extra_args: Sequence[str] = (),
+        executable: str = "node",
     ) -> None:
-        self.executable = prefix / "lib" / PACKAGE / "node"
+        self.executable = prefix / "lib" / PACKAGE / executable
         self.log_path = log_path
         args = [str(self.executable), "--ros-args", "--params-file", str(params_file)]
         for name, target in remaps.items():
             args += ["-r", f"{name}:={target}"]
+        args += extra_args
         self._log = self.log_path.open("w")
         # The node picks its Fast DDS profile itself, unless the user chose one for the whole run.
         node_env = {k: v for k, v in env.items() if not (k in PROFILE_ENVS and v in _PROFILE_SET_HERE)}
@@ -192,14 +201,21 @@ def running_node(
 
 @pytest.fixture
 def start_node(install_prefix: Path, ros_env: dict[str, str], tmp_path: Path) -> Iterator[Any]:
-    """Factory: start_node(params | params_file, remaps, reliable_topics=()) -> NodeProcess; all killed afterwards."""
+    """Factory: start_node(params | params_file, remaps, reliable_topics=(), extra_args=(), executable="node") ->
+    NodeProcess; all killed afterwards."""
     started: list[NodeProcess] = []
 
-    def start(params: Mapping[str, Any] | Path, remaps: Mapping[str, str], reliable_topics: tuple[str, ...] = ()):
+    def start(
+        params: Mapping[str, Any] | Path,
+        remaps: Mapping[str, str],
+        reliable_topics: tuple[str, ...] = (),
+        extra_args: Sequence[str] = (),
+        executable: str = "node",
+    ) -> NodeProcess:
         name = f"node_{len(started)}"
         path = params if isinstance(params, Path) else params_yaml(tmp_path / f"{name}.yaml", params, reliable_topics)
         env = installed_env(install_prefix, ros_env)
-        node = NodeProcess(install_prefix, env, path, remaps, tmp_path / f"{name}.log")
+        node = NodeProcess(install_prefix, env, path, remaps, tmp_path / f"{name}.log", extra_args, executable)
         started.append(node)
         return node
 

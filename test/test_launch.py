@@ -1,13 +1,17 @@
 """launch/triplet_normal.launch.py without ``launch`` (not installable here): it compiles, calls the real launch API,
 starts the console script setup.py installs as ``node`` (the module that defines the node's name) from setup.py's
 package, under the node's name; every argument it declares has a description and reaches the node (a topic remap,
-the parameter file, or the preset that picks it); with no arguments the node gets the preset ``params``, i.e.
-config/params.yaml, and its own topic names; every preset resolves (through ament_index, as ``ros2 launch`` would) to
-the file setup.py's data_files install under share/, and colcon installs them there.
+the namespace, a parameter file, the preset that picks one, ``use_sim_time``, the log level); with no arguments the
+node gets the preset ``params``, i.e. config/params.yaml, its own topic names, no namespace, wall time and the info
+level; a ``params_file`` comes after the preset, so its keys win key by key; every preset resolves (through
+ament_index, as ``ros2 launch`` would) to the file setup.py's data_files install under share/, and colcon installs
+them there. The installed node, started with the arguments the launch file gives, runs in the namespace, on sim time,
+at debug level, with the user file's keys over the preset's.
 
 Its ``generate_launch_description`` runs for real, against stand-ins for ``launch``'s classes that record what it
 builds; ``launched`` then works out what ``ros2 launch`` would start from that, for given command-line arguments
-(declared arguments in order, each its value or its default, a default that is a list joined; choices enforced).
+(declared arguments in order, each its value or its default, a default that is a list joined; choices enforced;
+an OpaqueFunction called with those values, as launch calls it once the arguments are known).
 """
 
 from __future__ import annotations
@@ -139,7 +143,19 @@ class _DeclareLaunchArgument(_Recorded):
     pass
 
 
+class _LaunchContext:
+    """The launch context an OpaqueFunction gets: here only the launch arguments' values."""
+
+    def __init__(self, values: Mapping[str, str]) -> None:
+        self.values = dict(values)
+
+
 class _LaunchConfiguration(_Recorded):
+    def perform(self, context: _LaunchContext) -> str:
+        return _resolve(self, context.values)
+
+
+class _OpaqueFunction(_Recorded):
     pass
 
 
@@ -153,20 +169,34 @@ class _LaunchDescription(_Recorded):
 
 @dataclass(frozen=True)
 class Launched:
-    """What ``ros2 launch`` would start: the node's (package, executable, name), its parameters (parameter file paths
-    and {name: value} maps, in order) and its topic remaps."""
+    """What ``ros2 launch`` would start: the node's (package, executable, name), its namespace, its parameters
+    (parameter file paths and {name: value} maps, in the order ROS applies them), its topic remaps and its other ROS
+    arguments."""
 
     node: tuple[str, str, str]
+    namespace: str
     parameters: tuple[Any, ...]
     remappings: tuple[tuple[str, str], ...]
+    ros_arguments: tuple[str, ...]
+
+    def command_line(self) -> list[str]:
+        """The node's ``--ros-args`` as launch_ros passes them (a {name: value} map as ``-p``, which it writes to a
+        file of its own instead): node name, namespace (relative to the root), files and maps in order, remaps."""
+        args = [*self.ros_arguments, "-r", f"__node:={self.node[2]}", "-r", f"__ns:=/{self.namespace.lstrip('/')}"]
+        for item in self.parameters:
+            if isinstance(item, dict):
+                args += [a for name, v in item.items() for a in ("-p", f"{name}:={yaml.safe_dump(v).split()[0]}")]
+            else:
+                args += ["--params-file", item]
+        return args + [a for source, target in self.remappings for a in ("-r", f"{source}:={target}")]
 
 
 def _description(monkeypatch: pytest.MonkeyPatch) -> _LaunchDescription:
     """The launch file's own generate_launch_description(), run with the stand-ins in place of launch and launch_ros;
     ament_index is the real one (AMENT_PREFIX_PATH decides where the package's share directory is)."""
     modules = {
-        "launch": {"LaunchDescription": _LaunchDescription},
-        "launch.actions": {"DeclareLaunchArgument": _DeclareLaunchArgument},
+        "launch": {"LaunchDescription": _LaunchDescription, "LaunchContext": _LaunchContext},
+        "launch.actions": {"DeclareLaunchArgument": _DeclareLaunchArgument, "OpaqueFunction": _OpaqueFunction},
         "launch.substitutions": {"LaunchConfiguration": _LaunchConfiguration},
         "launch_ros": {},
         "launch_ros.actions": {"Node": _Node},
@@ -215,6 +245,8 @@ def launched(monkeypatch: pytest.MonkeyPatch, arguments: Mapping[str, str] | Non
             choices = action.kwargs.get("choices")
             assert choices is None or text in choices, f"{name}:={text} is not one of {choices}"
             values[name] = text
+        elif isinstance(action, _OpaqueFunction):
+            nodes += action.kwargs["function"](_LaunchContext(values))
         elif isinstance(action, _Node):
             nodes.append(action)
     assert not arguments, f"arguments the launch file does not declare: {sorted(arguments)}"
@@ -227,7 +259,17 @@ def launched(monkeypatch: pytest.MonkeyPatch, arguments: Mapping[str, str] | Non
         for item in kwargs.get("parameters", [])
     )
     remappings = tuple((_resolve(a, values), _resolve(b, values)) for a, b in kwargs.get("remappings", []))
-    return Launched((kwargs["package"], kwargs["executable"], kwargs["name"]), parameters, remappings)
+    return Launched(
+        (kwargs["package"], kwargs["executable"], kwargs["name"]),
+        _resolve(kwargs.get("namespace", ""), values),
+        parameters,
+        remappings,
+        tuple(_resolve(a, values) for a in kwargs.get("ros_arguments", [])),
+    )
+
+
+#: rclpy's own parameters that the launch file may set in a {name: value} map, with rclpy's defaults.
+RCLPY_PARAMETERS = {"use_sim_time": False}
 
 
 def test_every_argument_has_a_description_and_reaches_the_node(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -238,29 +280,72 @@ def test_every_argument_has_a_description_and_reaches_the_node(tmp_path: Path, m
     declared = _declared(_description(monkeypatch))
     assert len(declared) == len(calls(tree(), "DeclareLaunchArgument")), "an argument is declared twice"
     assert all(a.kwargs.get("description") for a in declared.values())
-    # No arguments: the node's own topic names, and the default preset's parameter file.
+    # No arguments: the node's own topic names, no namespace, the default preset's parameter file and nothing after
+    # it but rclpy's own parameters at their defaults, the info level.
     default = launched(monkeypatch)
     assert default.node == (PACKAGE, "node", NODE_NAME)
     assert default.remappings == tuple((topic, topic) for topic in TOPICS)
-    assert default.parameters == (str(config / "params.yaml"),)
+    assert default.namespace == ""
+    assert default.parameters == (str(config / "params.yaml"), RCLPY_PARAMETERS)
+    assert default.ros_arguments == ("--log-level", "info")
     # Each argument, given a value other than its default, changes what the node gets: none is declared for nothing.
     for name, argument in declared.items():
         choices = argument.kwargs.get("choices")
         other = next(c for c in choices if c != _resolve(argument.kwargs["default_value"], {})) if choices else "/x"
         changed = launched(monkeypatch, {name: other})
         assert changed != default, f"launch argument {name}:={other} does not reach the node"
-    # ... and changes it as its name says: topics are remapped, the parameter file replaces the preset's.
+    # ... and changes it as its name says.
     topics = launched(monkeypatch, {"input": "/cam/points", "output": "/cam/normals"})
     assert topics.remappings == (("input", "/cam/points"), ("output", "/cam/normals"))
-    assert launched(monkeypatch, {PARAMS_FILE: "/my/params.yaml", PRESET: "lidar"}).parameters == ("/my/params.yaml",)
-    # A node parameter passed by argument (a {name: value} map after the file, so it overrides it) is one of the
-    # node's, and left at its default it is the node's default.
-    specs = {spec.name: spec for spec in SPECS}
-    for mapping in default.parameters[1:]:
-        assert isinstance(mapping, dict), f"after the parameter file only name: value maps: {default.parameters}"
-        for name, setting in mapping.items():
-            assert name in specs, f"launch parameter {name!r} is not a node parameter ({sorted(specs)})"
-            assert setting == specs[name].default, f"{name}: launch default {setting!r}, node's {specs[name].default!r}"
+    robot = launched(monkeypatch, {"namespace": "robot1", "use_sim_time": "true", "log_level": "debug"})
+    assert robot.namespace == "robot1" and robot.remappings == default.remappings  # relative: they follow it
+    assert robot.parameters == (str(config / "params.yaml"), {"use_sim_time": True})  # a bool, as rclpy declares it
+    assert robot.ros_arguments == ("--log-level", "debug")
+    # A {name: value} map after the files (so it overrides them) names a node parameter or one of rclpy's, and left
+    # at its default it is that parameter's default.
+    defaults = {**{spec.name: spec.default for spec in SPECS}, **RCLPY_PARAMETERS}
+    maps = [item for item in default.parameters if isinstance(item, dict)]
+    assert default.parameters[-len(maps) :] == tuple(maps), f"a parameter file after a map: {default.parameters}"
+    for name, setting in (pair for mapping in maps for pair in mapping.items()):
+        assert name in defaults, f"launch parameter {name!r} is neither the node's nor rclpy's ({sorted(defaults)})"
+        assert setting == defaults[name], f"{name}: launch default {setting!r}, the node's {defaults[name]!r}"
+
+
+def test_a_params_file_comes_after_the_preset_so_its_keys_win_one_by_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """ROS 2 applies parameter files in order, a later file's key over an earlier one's: the user's file must come
+    after the preset's, so what it sets wins and what it leaves out keeps the preset's value."""
+    prefix = tmp_path / "prefix"
+    _installed_data_files(prefix)
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(prefix))
+    preset = prefix / "share" / PACKAGE / "config" / "lidar.yaml"
+    own = own_params(tmp_path / "mine.yaml")
+    given = launched(monkeypatch, {PARAMS_FILE: str(own), PRESET: "lidar"})
+    assert given.parameters == (str(preset), str(own), RCLPY_PARAMETERS)
+    merged = applied(given.parameters)
+    assert merged["radius"] == OWN["radius"] != applied([str(preset)])["radius"]  # the user's key wins ...
+    assert merged["range_scale"] == applied([str(preset)])["range_scale"]  # ... the preset's others stay
+    assert launched(monkeypatch, {PRESET: "lidar"}).parameters == (str(preset), RCLPY_PARAMETERS)  # empty: no file
+
+
+#: The user's parameter file of the precedence tests: pca on the CPU (quick to answer) and its own radius, nothing
+#: else, so every other key comes from the preset.
+OWN = {"method": "pca", "device": "cpu", "radius": 0.1}
+
+
+def own_params(path: Path) -> Path:
+    path.write_text(yaml.safe_dump({"/**": {"ros__parameters": OWN}}))
+    return path
+
+
+def applied(parameters: Any) -> dict[str, Any]:
+    """Parameter files and maps applied in order, later keys over earlier ones (each file's ``/**`` section)."""
+    merged: dict[str, Any] = {}
+    for item in parameters:
+        section = item if isinstance(item, dict) else yaml.safe_load(Path(item).read_text())["/**"]["ros__parameters"]
+        merged.update(section)
+    return merged
 
 
 def _installed_data_files(prefix: Path) -> None:
@@ -287,7 +372,8 @@ def _check_presets(monkeypatch: pytest.MonkeyPatch, share: Path) -> None:
     presets = _declared(_description(monkeypatch))[PRESET].kwargs["choices"]
     assert set(presets) >= {"params", "depth_camera", "lidar"}, presets
     for preset in presets:
-        (params_file,) = launched(monkeypatch, {PRESET: preset}).parameters
+        params_file, *maps = launched(monkeypatch, {PRESET: preset}).parameters
+        assert all(isinstance(item, dict) for item in maps)
         assert Path(params_file) == share / "config" / f"{preset}.yaml"
         assert Path(params_file).read_bytes() == (REPO / "config" / f"{preset}.yaml").read_bytes()
 
@@ -306,3 +392,4 @@ def test_colcon_installs_it_and_its_presets_resolve_to_the_installed_files(
 
     monkeypatch.setenv("AMENT_PREFIX_PATH", str(install_prefix))  # what sourcing install/setup.bash sets
     _check_presets(monkeypatch, install_prefix / "share" / PACKAGE)
+
