@@ -2,21 +2,27 @@
 
 Clouds are built field by field here, independently of the package's own PointCloud2 code, so a test that decodes
 them with the package checks the package against this construction. Topics of types no typestore knows can be
-written as real recorders leave them when they cannot find a type's definition (`write_bag`'s `undescribed`).
+written as real recorders leave them when they cannot find a type's definition (`write_bag`'s `undescribed`), and
+`RECORDINGS` writes bags the ways rosbag2 writes them (read from rosbag2's source: Humble's sqlite3 schema and
+metadata version 5, definitions of encoding '' and 'unknown', compression, metadata that disagrees with its storage
+file about QoS), each holding `recording_records`.
 """
 
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
 import numpy as np
+import yaml
 from rosbags.interfaces import Connection
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StoragePlugin, Writer
+from rosbags.rosbag2.metadata import parse_qos
 from rosbags.rosbag2.storage_mcap import McapWriter, Schema, write_schema
+from rosbags.rosbag2.writer import zstd  # the zstd module rosbags compresses with (backports.zstd before 3.14)
 from rosbags.typesys import Stores, get_typestore
 
 TYPES = get_typestore(Stores.ROS2_KILTED)
@@ -28,9 +34,21 @@ BLOB = "acme_msgs/msg/Blob"
 OPAQUE = "acme_msgs/msg/Opaque"
 #: The type hash an 'empty' undescribed topic records (rosbag2 learns it from the publisher, not the definition).
 CUSTOM_HASH = "RIHS01_" + "c" * 64
-#: Marks, while a bag is written, the hash of a 'missing' topic, blanked afterwards: rosbags' writer requires one.
-_BLANK = "RIHS01_" + "b" * 64
-Undescribed = Literal["empty", "missing"]
+#: A type no ROS 2 typestore knows (ROS 1's, recorded through a bridge): /rosout of `recording_records`.
+LOG = "rosgraph_msgs/msg/Log"
+#: Marks, while a bag is written, the hash of a 'missing' or 'not-understood' topic, blanked afterwards: rosbags'
+#: writer requires one.
+_BLANK = {"missing": "RIHS01_" + "b" * 64, "not-understood": "RIHS01_" + "d" * 64}
+#: What rosbag2 writes as the encoding of such a topic's definition (rosbag2_cpp's message definition source and
+#: SequentialWriter: '' when no definition is found, 'unknown' when the type name is not understood).
+_ENCODING = {"missing": "", "not-understood": "unknown"}
+Undescribed = Literal["empty", "missing", "not-understood"]
+#: The QoS Humble's recorder writes for /rosout, in its format (rosbag2's ros2bag test resources).
+HUMBLE_QOS = (
+    "- history: 3\n  depth: 0\n  reliability: 1\n  durability: 1\n  deadline:\n    sec: 0\n    nsec: 0\n  lifespan:\n"
+    "    sec: 10\n    nsec: 0\n  liveliness: 1\n  liveliness_lease_duration:\n    sec: 0\n    nsec: 0\n"
+    "  avoid_ros_namespace_conventions: false"
+)
 
 
 @dataclass(frozen=True)
@@ -99,14 +117,15 @@ def raw_message(payload: bytes) -> bytes:
 
 
 class _McapRecorder(McapWriter):
-    """rosbags' MCAP storage, except that a 'missing' type gets what rosbag2 writes for a type whose definition it
-    cannot find: a schema with encoding '' and no data."""
+    """rosbags' MCAP storage, except that a 'missing' or 'not-understood' type gets what rosbag2 writes for it: a
+    schema of encoding '' or 'unknown' and no data."""
 
     def add_msgtype(self, connection: Connection) -> None:
-        if connection.digest != _BLANK:
+        kind = next((k for k, marker in _BLANK.items() if connection.digest == marker), None)
+        if kind is None:
             super().add_msgtype(connection)
             return
-        self.schemas.append(Schema(len(self.schemas) + 1, connection.msgtype, "", ""))
+        self.schemas.append(Schema(len(self.schemas) + 1, connection.msgtype, _ENCODING[kind], ""))
         write_schema(self.chunk.bio, self.schemas[-1])
 
 
@@ -137,42 +156,247 @@ def undescribed_records() -> list[Record]:
 
 
 def write_bag(
-    path: Path, storage: str, records: list[Record], undescribed: Mapping[str, Undescribed] | None = None
+    path: Path,
+    storage: str,
+    records: list[Record],
+    undescribed: Mapping[str, Undescribed] | None = None,
+    *,
+    idle: Mapping[str, str] | None = None,
+    compression: str = "",
+    qos: str = "",
 ) -> Path:
-    """A rosbag2 directory with one connection per (topic, type), in order of first appearance.
+    """A rosbag2 directory (format version 9, Jazzy's and Kilted's) with one connection per (topic, type), in order
+    of first appearance, then one per `idle` topic (topic -> type; declared, no messages).
 
     `undescribed` maps topics whose records carry CDR bytes of a type no typestore knows (one type per topic) to how
     the bag lacks its definition: 'empty' is an empty definition with a type hash (what rosbags writes when given an
-    empty definition), 'missing' is no definition and no hash (rosbag2 recording a type it cannot find: no row in
-    sqlite3's message_definitions, an MCAP schema of encoding ''; a bag recorded before Iron has no hash either).
+    empty definition); 'missing' and 'not-understood' are what rosbag2 records for a type whose definition it cannot
+    find or whose name it cannot parse: a definition of encoding '' or 'unknown' (an sqlite3 message_definitions row,
+    an MCAP schema) with no text and no type hash. `compression` is '' or rosbag2's 'file' or 'message' (zstd);
+    `qos` is every topic's offered QoS, in either of rosbag2's YAML formats.
     """
+    profiles = parse_qos(qos)
     undescribed = undescribed or {}
-    with _Recorder(path, version=9, storage_plugin=StoragePlugin[storage.upper()]) as writer:
+    writer = _Recorder(path, version=9, storage_plugin=StoragePlugin[storage.upper()])
+    if compression == "message":
+        writer.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
+    with writer:
         connections: dict[tuple[str, str], Any] = {}
         for r in records:
             if (r.topic, r.msgtype) in connections:
                 continue
             if r.topic in undescribed:
-                digest = _BLANK if undescribed[r.topic] == "missing" else CUSTOM_HASH
-                connections[r.topic, r.msgtype] = writer.add_connection(r.topic, r.msgtype, msgdef="", rihs01=digest)
+                kind = undescribed[r.topic]
+                digest = CUSTOM_HASH if kind == "empty" else _BLANK[kind]
+                connections[r.topic, r.msgtype] = writer.add_connection(
+                    r.topic, r.msgtype, msgdef="", rihs01=digest, offered_qos_profiles=profiles
+                )
             else:
-                connections[r.topic, r.msgtype] = writer.add_connection(r.topic, r.msgtype, typestore=TYPES)
+                connections[r.topic, r.msgtype] = writer.add_connection(
+                    r.topic, r.msgtype, typestore=TYPES, offered_qos_profiles=profiles
+                )
+        for topic, msgtype in (idle or {}).items():
+            writer.add_connection(topic, msgtype, typestore=TYPES, offered_qos_profiles=profiles)
         for r in records:
-            raw = r.msg if isinstance(r.msg, bytes) else TYPES.serialize_cdr(r.msg, r.msgtype)
-            writer.write(connections[r.topic, r.msgtype], r.timestamp, raw)
+            writer.write(connections[r.topic, r.msgtype], r.timestamp, raw_of(r))
     _blank_hashes(path)
+    if compression == "file":
+        _compress_file(path)
     return path
 
 
-def _blank_hashes(path: Path) -> None:
-    """Remove the 'missing' topics' marker hash, and in sqlite3 their definition row, from a closed bag."""
+def _compress_file(path: Path) -> None:
+    """Compress a closed bag's storage file as rosbag2's file compression does: FILE.zstd, named in metadata.yaml."""
     metadata = path / "metadata.yaml"
-    metadata.write_text(metadata.read_text().replace(_BLANK, "''"))
+    info = yaml.safe_load(metadata.read_text())
+    bag = info["rosbag2_bagfile_information"]
+    (name,) = bag["relative_file_paths"]
+    (path / name).with_name(name + ".zstd").write_bytes(zstd.compress((path / name).read_bytes()))
+    (path / name).unlink()
+    bag |= {"compression_format": "zstd", "compression_mode": "FILE", "relative_file_paths": [name + ".zstd"]}
+    bag["files"][0]["path"] = name + ".zstd"
+    metadata.write_text(yaml.safe_dump(info, sort_keys=False))
+
+
+def raw_of(record: Record) -> bytes:
+    """The CDR bytes a bag holds for `record`."""
+    return record.msg if isinstance(record.msg, bytes) else bytes(TYPES.serialize_cdr(record.msg, record.msgtype))
+
+
+def _blank_hashes(path: Path) -> None:
+    """Replace the marker hashes by '' and, in sqlite3, give the marked types rosbag2's encoding, in a closed bag."""
+    metadata = path / "metadata.yaml"
+    text = metadata.read_text()
+    for marker in _BLANK.values():
+        text = text.replace(marker, "''")
+    metadata.write_text(text)
     for database in path.glob("*.db3"):
         with sqlite3.connect(database) as db:
-            db.execute("DELETE FROM message_definitions WHERE type_description_hash = ?", (_BLANK,))
-            db.execute("UPDATE topics SET type_description_hash = '' WHERE type_description_hash = ?", (_BLANK,))
+            for kind, marker in _BLANK.items():
+                db.execute(
+                    "UPDATE message_definitions SET encoding = ?, type_description_hash = '' "
+                    "WHERE type_description_hash = ?",
+                    (_ENCODING[kind], marker),
+                )
+                db.execute("UPDATE topics SET type_description_hash = '' WHERE type_description_hash = ?", (marker,))
         db.close()
+
+
+# ---------------------------------------------------------------- bags as rosbag2 writes them
+
+
+def recording_records() -> list[Record]:
+    """What a robot records: clouds on /points, its log on /rosout (type `LOG`, which no ROS 2 typestore knows, so
+    every recording below has no definition of it), strings on /chatter."""
+    log = TYPES.types["rcl_interfaces/msg/Log"]
+    records = []
+    for i in range(2):
+        t = 1_000_000 * (i + 1)
+        records.append(Record("/points", CLOUD, t, cloud(scattered_points(2000, seed=20 + i), 30_000_000_000 + t)))
+        stamp = TYPES.types["builtin_interfaces/msg/Time"](sec=30, nanosec=t)
+        message = log(stamp=stamp, level=20, name="driver", msg=f"frame {i}", file="d.cpp", function="f", line=i)
+        records.append(Record("/rosout", LOG, t + 100, bytes(TYPES.serialize_cdr(message, "rcl_interfaces/msg/Log"))))
+        records.append(Record("/chatter", STRING, t + 200, string(f"message {i}")))
+    return records
+
+
+#: A topic each recording declares without any message (rosbag2 records a topic it subscribed to that stayed silent).
+IDLE = {"/idle": STRING}
+
+
+def write_humble_bag(path: Path, storage: str, records: list[Record]) -> Path:
+    """A bag as rosbag2 on Humble records one: metadata.yaml version 5, no type hashes anywhere, every topic with the
+    QoS string Humble writes; sqlite3 in Humble's schema (rosbag2_storage_default_plugins: no message definitions at
+    all), MCAP with a schema of encoding '' for `LOG` (its definition was not found) and the others' definitions.
+    `IDLE`'s topic is declared without messages."""
+    if storage == "sqlite3":
+        storage_file = _humble_sqlite3(path, records)
+    else:
+        undescribed: dict[str, Undescribed] = {r.topic: "missing" for r in records if r.msgtype == LOG}
+        write_bag(path, "mcap", records, undescribed, idle=IDLE, qos=HUMBLE_QOS)
+        (storage_file,) = path.glob("*.mcap")
+    topics = {(r.topic, r.msgtype): 0 for r in records} | {(t, m): 0 for t, m in IDLE.items()}
+    for r in records:
+        topics[r.topic, r.msgtype] += 1
+    _write_metadata(path, 5, storage, storage_file.name, records, topics, HUMBLE_QOS)
+    return path
+
+
+def _humble_sqlite3(path: Path, records: list[Record]) -> Path:
+    """`records` in a database of Humble's schema (version 3), with its exact CREATE statements."""
+    path.mkdir()
+    database = path / f"{path.name}_0.db3"
+    ids = {key: i + 1 for i, key in enumerate(dict.fromkeys([*((r.topic, r.msgtype) for r in records), *IDLE.items()]))}
+    with sqlite3.connect(database) as db:
+        db.executescript(
+            "CREATE TABLE schema(schema_version INTEGER PRIMARY KEY,ros_distro TEXT NOT NULL);"
+            "CREATE TABLE metadata(id INTEGER PRIMARY KEY,metadata_version INTEGER NOT NULL,metadata TEXT NOT NULL);"
+            "CREATE TABLE topics(id INTEGER PRIMARY KEY,name TEXT NOT NULL,type TEXT NOT NULL,"
+            "serialization_format TEXT NOT NULL,offered_qos_profiles TEXT NOT NULL);"
+            "CREATE TABLE messages(id INTEGER PRIMARY KEY,topic_id INTEGER NOT NULL,timestamp INTEGER NOT NULL, "
+            "data BLOB NOT NULL);"
+            "CREATE INDEX timestamp_idx ON messages (timestamp ASC);"
+            "INSERT INTO schema (schema_version, ros_distro) VALUES (3, 'humble');"
+        )
+        for (topic, msgtype), topic_id in ids.items():
+            db.execute("INSERT INTO topics VALUES (?, ?, ?, 'cdr', ?)", (topic_id, topic, msgtype, HUMBLE_QOS))
+        for r in records:
+            db.execute(
+                "INSERT INTO messages (topic_id, timestamp, data) VALUES (?, ?, ?)",
+                (ids[r.topic, r.msgtype], r.timestamp, raw_of(r)),
+            )
+    db.close()
+    return database
+
+
+def _write_metadata(
+    path: Path,
+    version: int,
+    storage: str,
+    file_name: str,
+    records: list[Record],
+    topics: Mapping[tuple[str, str], int],
+    qos: str,
+    compression: str = "",
+) -> None:
+    """metadata.yaml in the layout of rosbag2 format `version` (4: no per-file list; 5 and 6 add it and custom data;
+    7 the type hash; 8 the distribution), every topic with the QoS string `qos` and no type hash."""
+    start = min(r.timestamp for r in records)
+    duration = max(r.timestamp for r in records) - start
+    info: dict[str, Any] = {
+        "version": version,
+        "storage_identifier": storage,
+        "duration": {"nanoseconds": duration},
+        "starting_time": {"nanoseconds_since_epoch": start},
+        "message_count": len(records),
+        "topics_with_message_count": [
+            {
+                "topic_metadata": {"name": t, "type": m, "serialization_format": "cdr", "offered_qos_profiles": qos}
+                | ({"type_description_hash": ""} if version >= 7 else {}),
+                "message_count": count,
+            }
+            for (t, m), count in topics.items()
+        ],
+        "compression_format": "zstd" if compression else "",
+        "compression_mode": compression.upper(),
+        "relative_file_paths": [file_name],
+    }
+    if version >= 5:
+        info["files"] = [
+            {
+                "path": file_name,
+                "starting_time": {"nanoseconds_since_epoch": start},
+                "duration": {"nanoseconds": duration},
+                "message_count": len(records),
+            }
+        ]
+    if version >= 6:
+        info["custom_data"] = None
+    if version >= 8:
+        info["ros_distro"] = "jazzy"
+    (path / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False))
+
+
+def _older_metadata(path: Path, records: list[Record], version: int, qos: str = "") -> Path:
+    """A bag `write_bag` wrote from `records`, its metadata.yaml rewritten in format `version`'s layout; with `qos`,
+    declaring every topic with that QoS, which its storage file does not record (as ``ros2 bag convert`` leaves some
+    bags: rosbag2's own converted test bags)."""
+    info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    topics = {(e["topic_metadata"]["name"], e["topic_metadata"]["type"]): e["message_count"]
+              for e in info["topics_with_message_count"]}  # fmt: skip
+    (file_name,) = info["relative_file_paths"]
+    compression = info["compression_mode"].lower()
+    _write_metadata(path, version, info["storage_identifier"], file_name, records, topics, qos, compression)
+    return path
+
+
+def _recorded(records: list[Record], storage: str, path: Path, **options: Any) -> Path:
+    return write_bag(path, storage, records, idle=IDLE, **options)
+
+
+#: Bags as rosbag2 writes them, by name: (path, storage, records) -> the bag. Each holds every record and `IDLE`'s
+#: topic, and no definition of `LOG` (/rosout). Every one opens in ``ros2 bag info``.
+RECORDINGS: dict[str, Callable[[Path, str, list[Record]], Path]] = {
+    "humble": lambda path, storage, records: write_humble_bag(path, storage, records),
+    "jazzy, definition not found": lambda path, storage, records: _recorded(
+        records, storage, path, undescribed={"/rosout": "missing"}
+    ),
+    "type name not understood": lambda path, storage, records: _recorded(
+        records, storage, path, undescribed={"/rosout": "not-understood"}
+    ),
+    "converted, QoS only in metadata": lambda path, storage, records: _older_metadata(
+        _recorded(records, storage, path, undescribed={"/rosout": "missing"}), records, 8, HUMBLE_QOS
+    ),
+    "foxy metadata": lambda path, storage, records: _older_metadata(
+        _recorded(records, storage, path, undescribed={"/rosout": "missing"}), records, 4
+    ),
+    "file compression": lambda path, storage, records: _recorded(
+        records, storage, path, undescribed={"/rosout": "missing"}, compression="file"
+    ),
+    "message compression": lambda path, storage, records: _recorded(
+        records, storage, path, undescribed={"/rosout": "missing"}, compression="message"
+    ),
+}
 
 
 def connections(path: Path) -> dict[str, Connection]:

@@ -2,7 +2,9 @@
 
 The output is read back and compared with NormalEstimator on the same clouds, oriented towards the viewpoint as
 the node does: normals and curvature exactly, xyz and the other fields byte for byte, receive timestamps and header
-stamps unchanged, the other topics copied through, those of types the bag does not define too. Also: storage
+stamps unchanged, the other topics copied through, those of types the bag does not define too; every kind of bag
+rosbag2 writes (a Humble recording with a schema-less /rosout among them) gives an OUT that rosbags' AnyReader opens,
+holding every message. Also: storage
 conversion, --no-copy, --start/--end/--limit, --keep-zeros, a hybrid run, a malformed cloud skipped with a warning,
 refusal to overwrite, resume after Ctrl-C (and its refusal to go on with other options), and every failure as one line.
 """
@@ -22,15 +24,19 @@ from rosbag_files import (
     BLOB,
     CLOUD,
     CUSTOM_HASH,
+    LOG,
     OPAQUE,
+    RECORDINGS,
     STRING,
     UNDESCRIBED,
     Record,
     cloud,
     connections,
     organized_points,
+    raw_of,
     read_bag,
     read_raw,
+    recording_records,
     scattered_points,
     stamp_ns,
     storage_of,
@@ -38,6 +44,8 @@ from rosbag_files import (
     undescribed_records,
     write_bag,
 )
+from rosbags.highlevel import AnyReader
+from rosbags.interfaces import MessageDefinitionFormat
 
 from triplet_normal_ros.cli import bag as bag_command
 from triplet_normal_ros.cli.main import main
@@ -46,7 +54,6 @@ from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.orientation import orient_towards_viewpoint
 from triplet_normal_ros.io import bag_output
 from triplet_normal_ros.io.bag_output import partial_path
-from triplet_normal_ros.io.bags import NO_TYPE_HASH
 from triplet_normal_ros.io.pointcloud2 import read_field, read_xyz
 from triplet_normal_ros.ros.params import NodeSettings
 
@@ -175,21 +182,53 @@ def test_topics_the_bag_does_not_define_are_copied_raw_with_a_note(
     assert status == 0, captured.err
     assert captured.err.splitlines() == [
         f"triplet-normal: note: topic /blob ({BLOB}): no message definition in the bag; copied as raw messages",
-        f"triplet-normal: note: topic /opaque ({OPAQUE}): no message definition in the bag; copied as raw messages",
-    ]
+    ]  # /opaque's empty definition is that of a type without fields
     assert "2 clouds on /points (0 skipped), 3 topics copied" in captured.out
     assert storage_of(out) == output_storage
-    assert [r for r in read_raw(out) if r[0] != "/points/normals"] == read_raw(source)  # byte for byte, same times
+    assert [(t, ts, raw) for t, _, ts, raw in read_raw(out) if t != "/points/normals"] == [
+        (r.topic, r.timestamp, raw_of(r)) for r in records
+    ]  # byte for byte, same times
     declared = connections(out)
-    assert [(declared[t].msgtype, declared[t].msgdef.data, declared[t].digest) for t in ("/blob", "/opaque")] == [
-        (BLOB, "", NO_TYPE_HASH),  # the bag recorded no hash; rosbags' writer needs one
-        (OPAQUE, "", CUSTOM_HASH),
+    assert [(declared[t].msgtype, declared[t].msgdef, declared[t].digest) for t in ("/blob", "/opaque")] == [
+        (BLOB, (MessageDefinitionFormat.NONE, ""), ""),  # as rosbag2 declares a type it has no definition of
+        (OPAQUE, (MessageDefinitionFormat.MSG, ""), CUSTOM_HASH),  # as IN declares it
     ]
     normals = read_bag(out, {"/points/normals"})
     clouds = [r for r in records if r.topic == "/points"]
     assert len(normals) == len(clouds) == 2
     for got, source_record in zip(normals, clouds, strict=True):
         assert_normals_match(got, source_record)
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+@pytest.mark.parametrize("kind", RECORDINGS)
+def test_every_bag_rosbag2_writes_gives_an_out_anyreader_opens_with_every_message(
+    tmp_path: Path, capsys, kind: str, storage: str
+) -> None:
+    """Among them a Humble recording (metadata version 5, no type hashes) whose /rosout has no definition: its OUT
+    declared /rosout with an all-zero type hash, and AnyReader refused it for not being the hash of the empty
+    definition declared beside it."""
+    records = recording_records()
+    source = RECORDINGS[kind](tmp_path / "in", storage, records)
+    out = tmp_path / "out"
+    status = main(["bag", str(source), str(out), "--topic", "/points", *PCA])
+    captured = capsys.readouterr()
+    assert status == 0, captured.err
+    assert captured.err.splitlines() == [
+        f"triplet-normal: note: topic /rosout ({LOG}): no message definition in the bag; copied as raw messages"
+    ]
+    with AnyReader([out]) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        got = [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages()]
+        normals = [
+            Record(c.topic, c.msgtype, t, reader.deserialize(raw, c.msgtype))
+            for c, t, raw in reader.messages([c for c in reader.connections if c.topic == "/points/normals"])
+        ]
+    assert counts == {"/points": 2, "/rosout": 2, "/chatter": 2, "/idle": 0, "/points/normals": 2}
+    assert [m for m in got if m[0] != "/points/normals"] == [(r.topic, r.timestamp, raw_of(r)) for r in records]
+    clouds = [r for r in records if r.topic == "/points"]
+    for got_cloud, source_record in zip(normals, clouds, strict=True):
+        assert_normals_match(got_cloud, source_record)
 
 
 @pytest.mark.parametrize(

@@ -1,9 +1,12 @@
 """io.bags and io.bag_output on rosbag2 bags the tests write (sqlite3 and MCAP).
 
 Reading: topics, counts, time order, a time window, the storage, bare storage files; clouds decode to the points
-they were built from; types the bag does not define are kept as stored. Writing: a cloud with normals is byte for
-byte the node's message (`pointcloud2.with_normals`). Errors: a missing, corrupt or foreign bag, a missing topic
-(naming the others), another message type, undecodable bytes.
+they were built from; types the bag does not define are kept as stored; every message of every bag the way rosbag2
+writes them (`rosbag_files.RECORDINGS`: Humble's, definitions of encoding '' and 'unknown', compression, QoS only in
+metadata.yaml). Writing: a cloud with normals is byte for byte the node's message (`pointcloud2.with_normals`); a
+type without a definition is declared as rosbag2 declares it, in a bag every distribution since Humble reads.
+Errors: a missing, corrupt or foreign bag, a missing topic (naming the others), another message type, undecodable
+bytes.
 The resumable writer: refuses to overwrite, replaces only bags, resumes after an exception, after a half-written
 message and after another process died without cleaning up, and refuses to resume a different job.
 """
@@ -11,6 +14,7 @@ message and after another process died without cleaning up, and refuses to resum
 from __future__ import annotations
 
 import array
+import sqlite3
 import subprocess
 import sys
 import textwrap
@@ -18,11 +22,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from rosbag_files import (
     BLOB,
     CLOUD,
     CUSTOM_HASH,
+    IDLE,
+    LOG,
     OPAQUE,
+    RECORDINGS,
     STRING,
     TYPES,
     UNDESCRIBED,
@@ -30,18 +38,23 @@ from rosbag_files import (
     cloud,
     connections,
     organized_points,
+    raw_of,
     read_raw,
+    recording_records,
     scattered_points,
     string,
     undescribed_records,
     write_bag,
+    write_humble_bag,
 )
+from rosbags.highlevel import AnyReader
 from rosbags.interfaces import MessageDefinitionFormat
+from rosbags.rosbag2.storage_mcap import McapReader
 from sensor_msgs.msg import PointCloud2, PointField
 
 from triplet_normal_ros.errors import BagError, CloudFormatError
 from triplet_normal_ros.io.bag_output import ResumableBagWriter, partial_path
-from triplet_normal_ros.io.bags import NO_TYPE_HASH, BagMessage, InputBag, decode_cloud, encode_cloud
+from triplet_normal_ros.io.bags import BagMessage, InputBag, decode_cloud, encode_cloud
 from triplet_normal_ros.io.pointcloud2 import read_field, read_xyz, with_normals
 
 STORAGES = ("sqlite3", "mcap")
@@ -100,20 +113,33 @@ def test_reads_a_time_window_from_the_first_message(mixed_bag: Path) -> None:
 
 def test_types_the_bag_does_not_define_are_kept_as_stored(tmp_path: Path, storage: str) -> None:
     source = write_bag(tmp_path / "in", storage, undescribed_records(), UNDESCRIBED)
-    stored = connections(source)  # the fixture: as rosbag2 and rosbags leave such types
-    assert (stored["/blob"].msgtype, stored["/blob"].msgdef.format, stored["/blob"].digest) == (
-        BLOB, MessageDefinitionFormat.NONE, "",
-    )  # fmt: skip
-    assert (stored["/opaque"].msgtype, stored["/opaque"].msgdef.data, stored["/opaque"].digest) == (
-        OPAQUE, "", CUSTOM_HASH,
-    )  # fmt: skip
     with InputBag(source) as bag:
         specs = {spec.topic: spec for spec in bag.specs()}
-    assert [(s.msgdef, s.digest, s.described) for s in (specs["/blob"], specs["/opaque"])] == [
-        ("", NO_TYPE_HASH, False),  # rosbags' writer needs a hash: the documented placeholder
-        ("", CUSTOM_HASH, False),
+        assert [(m.topic, m.timestamp, bytes(m.raw)) for m in bag.messages()] == [
+            (r.topic, r.timestamp, raw_of(r)) for r in undescribed_records()
+        ]
+    assert [(s.msgtype, s.encoding, s.msgdef, s.digest, s.described) for s in (specs["/blob"], specs["/opaque"])] == [
+        (BLOB, "", "", "", False),  # rosbag2's encoding '' and no hash: no definition
+        (OPAQUE, "ros2msg", "", CUSTOM_HASH, True),  # an empty definition is one of a type without fields
     ]
-    assert specs["/points"].described and specs["/points"].digest == stored["/points"].digest
+    assert specs["/points"].described and specs["/points"].digest == TYPES.hash_rihs01(CLOUD)
+
+
+@pytest.mark.parametrize("kind", RECORDINGS)
+def test_reads_every_message_of_the_bags_rosbag2_writes(tmp_path: Path, storage: str, kind: str) -> None:
+    """rosbags alone refuses most of these (KeyError on encoding '' or 'unknown') or reads them as empty (QoS in
+    metadata.yaml that the storage file does not record); `ros2 bag info` accepts them all."""
+    records = recording_records()
+    source = RECORDINGS[kind](tmp_path / "in", storage, records)
+    with InputBag(source) as bag:
+        assert bag.topics() == {"/chatter": STRING, "/idle": STRING, "/points": CLOUD, "/rosout": LOG}
+        assert [bag.count(t) for t in ("/points", "/rosout", "/chatter", *IDLE)] == [2, 2, 2, 0]
+        assert [(m.topic, m.msgtype, m.timestamp, bytes(m.raw)) for m in bag.messages()] == [
+            (r.topic, r.msgtype, r.timestamp, raw_of(r)) for r in records
+        ]
+        specs = {spec.topic: spec for spec in bag.specs()}
+    assert (specs["/rosout"].encoding, specs["/rosout"].msgdef, specs["/rosout"].digest) == ("", "", "")
+    assert specs["/points"].described and specs["/idle"].described
 
 
 def test_reads_a_bare_storage_file(mixed_bag: Path, storage: str) -> None:
@@ -239,6 +265,40 @@ def _copy_all(bag_path: Path, out: Path, *, stop_after: int | None = None, **opt
                 writer.write(message.index, [((message.topic, message.msgtype), message.timestamp, message.raw)])
             writer.finish()
     return writer
+
+
+def test_declares_a_type_without_definition_as_rosbag2_does(tmp_path: Path, storage: str) -> None:
+    """No definition (no sqlite3 row, an MCAP schema of encoding '') and no type hash, in format version 8 with QoS
+    strings: the bag opens in rosbags' AnyReader, which checks declared hashes against definitions, and in Humble's
+    rosbag2, which reads each topic's QoS as a string."""
+    records = recording_records()
+    out = tmp_path / "out"
+    _copy_all(write_humble_bag(tmp_path / "in", storage, records), out)
+    with AnyReader([out]) as reader:
+        assert [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages()] == [
+            (r.topic, r.timestamp, raw_of(r)) for r in records
+        ]
+    declared = connections(out)
+    assert (declared["/rosout"].msgdef.format, declared["/rosout"].digest) == (MessageDefinitionFormat.NONE, "")
+    assert "PointField[] fields" in declared["/points"].msgdef.data  # Humble's sqlite3 has none: the standard one
+    if storage == "sqlite3":
+        (database,) = out.glob("*.db3")
+        with sqlite3.connect(database) as db:
+            stored = {row[0]: row[1] for row in db.execute("SELECT topic_type, encoding FROM message_definitions")}
+        db.close()
+        assert LOG not in stored and stored[CLOUD] == "ros2msg"
+    else:
+        (mcap,) = out.glob("*.mcap")
+        reader = McapReader(mcap)
+        reader.open()
+        schemas = {schema.name: (schema.encoding, schema.data) for schema in reader.schemas.values()}
+        reader.close()
+        assert schemas[LOG] == ("", "")
+    metadata = yaml.safe_load((out / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert metadata["version"] == 8
+    assert all(
+        isinstance(t["topic_metadata"]["offered_qos_profiles"], str) for t in metadata["topics_with_message_count"]
+    )
 
 
 def test_writes_the_bag_and_leaves_no_partial(mixed_bag: Path, tmp_path: Path, storage: str) -> None:

@@ -11,6 +11,10 @@ readable. So the output goes to ``OUT.partial/``::
 A segment is closed at least every ``segment_seconds`` (and on any exception, when the last input message was
 written whole), so a crash loses at most that much work. :meth:`ResumableBagWriter.finish` copies the segments'
 raw messages into one bag, renames it to OUT and removes OUT.partial.
+
+Every bag is written in rosbag2 format version 8, which every distribution since Humble reads: version 9 writes a
+topic's QoS as a YAML list where Humble expects a string, and Humble's parser gives up on the whole metadata.yaml. A
+topic is declared as rosbag2 declares it (`_Writer.declare`), a type without a definition included.
 """
 
 from __future__ import annotations
@@ -22,21 +26,26 @@ import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, ClassVar
 
+from rosbags.interfaces import Connection, ConnectionExtRosbag2, MessageDefinition, MessageDefinitionFormat
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2.metadata import dump_qos_v8
+from rosbags.rosbag2.storage_mcap import McapWriter, Schema, write_schema
+from rosbags.rosbag2.storage_sqlite3 import Sqlite3Writer
 
 from ..errors import BagError
-from .bags import TopicSpec
+from .bags import ENCODINGS, TopicSpec
 
 __all__ = ["PARTIAL_SUFFIX", "SEGMENT_SECONDS", "ResumableBagWriter", "partial_path"]
 
 PARTIAL_SUFFIX = ".partial"
 #: Default seconds of work between closed segments: what a crash can cost.
 SEGMENT_SECONDS = 30.0
-#: rosbag2 format version written (Kilted's).
-BAG_VERSION = 9
+#: rosbag2 format version written: the newest that Humble reads (see the module docstring).
+BAG_VERSION = 8
 _PLUGINS = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}
+_FORMATS = {encoding: format_ for format_, encoding in ENCODINGS.items()}
 _JOB = "job.json"
 _OPEN = "open"
 _SEGMENT = re.compile(r"^(\d{12})-(\d{12})$")
@@ -53,22 +62,62 @@ def _is_bag(path: Path) -> bool:
     return path.is_dir() and (path / "metadata.yaml").is_file()
 
 
+class _Sqlite3Writer(Sqlite3Writer):
+    """rosbags' sqlite3 storage; a type without a definition gets no message_definitions row.
+
+    rosbag2 writes a row of encoding '' for it, which rosbags (0.11.9) cannot read; without a row, rosbags reads no
+    definition and rosbag2 too (its bags before Iron have no such table at all).
+    """
+
+    def add_msgtype(self, connection: Connection) -> None:
+        if connection.msgdef.format != MessageDefinitionFormat.NONE:
+            super().add_msgtype(connection)
+
+
+class _McapWriter(McapWriter):
+    """rosbags' MCAP storage; a type without a definition gets rosbag2's schema for it: encoding '', no data."""
+
+    def add_msgtype(self, connection: Connection) -> None:
+        if connection.msgdef.format != MessageDefinitionFormat.NONE:
+            super().add_msgtype(connection)
+            return
+        self.schemas.append(Schema(len(self.schemas) + 1, connection.msgtype, "", ""))
+        write_schema(self.chunk.bio, self.schemas[-1])
+
+
+class _Writer(Writer):
+    """rosbags' writer, declaring topics as rosbag2 does, which `Writer.add_connection` cannot: it gives every type a
+    definition (an empty one becomes a ros2msg definition of a type without fields) and requires a type hash."""
+
+    STORAGE_PLUGINS: ClassVar = {StoragePlugin.SQLITE3: _Sqlite3Writer, StoragePlugin.MCAP: _McapWriter}
+
+    def declare(self, spec: TopicSpec) -> Connection:
+        """Add `spec`'s topic with its definition (or none) and its type hash (or '')."""
+        assert self.storage is not None, "declare() before open()"
+        connection = Connection(
+            id=len(self.connections) + 1,
+            topic=spec.topic,
+            msgtype=spec.msgtype,
+            msgdef=MessageDefinition(_FORMATS[spec.encoding], spec.msgdef),
+            digest=spec.digest,
+            msgcount=0,
+            ext=ConnectionExtRosbag2(spec.serialization_format, list(spec.qos)),
+            owner=self,
+        )
+        if spec.msgtype not in self.added_types:
+            self.storage.add_msgtype(connection)
+            self.added_types.add(spec.msgtype)
+        self.storage.add_connection(connection, dump_qos_v8(list(spec.qos)))
+        self.connections.append(connection)
+        self.counts[connection.id] = 0
+        return connection
+
+
 def _open_writer(path: Path, storage: str, topics: Sequence[TopicSpec]) -> tuple[Writer, dict[tuple[str, str], Any]]:
     """A new bag at `path` with every topic declared (in the same order in every segment and in the result)."""
-    writer = Writer(path, version=BAG_VERSION, storage_plugin=_PLUGINS[storage])
+    writer = _Writer(path, version=BAG_VERSION, storage_plugin=_PLUGINS[storage])
     writer.open()
-    connections = {
-        spec.key: writer.add_connection(
-            spec.topic,
-            spec.msgtype,
-            msgdef=spec.msgdef,
-            rihs01=spec.digest,
-            serialization_format=spec.serialization_format,
-            offered_qos_profiles=list(spec.qos),
-        )
-        for spec in topics
-    }
-    return writer, connections
+    return writer, {spec.key: writer.declare(spec) for spec in topics}
 
 
 class ResumableBagWriter:

@@ -7,7 +7,12 @@ as the node's input everywhere, and the answer, a sensor_msgs PointCloud2, goes 
 failure to open or read a bag is one :class:`BagError` line naming the file.
 
 Topics are copied as raw bytes, which needs no message definition: a topic whose type the bag does not describe (a
-custom type recorded without its definition) is declared in the output as the input declares it.
+custom type recorded without its definition) is declared in the output as rosbag2 declares such a type.
+
+`rosbags` (0.11.9) refuses or misreads some bags that rosbag2 writes and ``ros2 bag info`` accepts; `_Reader` reads
+them: a message definition of encoding '' (sqlite3, Iron and later) or 'unknown' (both storages) is read as none, and
+messages whose topic metadata.yaml declares with other QoS than the storage file does (bags rewritten by
+``ros2 bag convert``) are read instead of silently skipped.
 """
 
 from __future__ import annotations
@@ -15,17 +20,20 @@ from __future__ import annotations
 import dataclasses
 import sqlite3
 import struct
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, ClassVar
 
+import apsw
 import numpy as np
 from builtin_interfaces.msg import Time
-from rosbags.interfaces import Connection
+from rosbags.interfaces import Connection, MessageDefinitionFormat
 from rosbags.rosbag2 import Reader, ReaderError
-from rosbags.rosbag2.storage_mcap import McapReader
+from rosbags.rosbag2.reader import DirectoryReader
+from rosbags.rosbag2.storage_mcap import McapReader, Schema
+from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 from std_msgs.msg import Header
@@ -35,7 +43,7 @@ from .pointcloud2 import empty_with_normals, with_normals
 
 __all__ = [
     "CLOUD_TYPE",
-    "NO_TYPE_HASH",
+    "ENCODINGS",
     "STORAGES",
     "BagError",
     "BagMessage",
@@ -52,9 +60,15 @@ CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
 STORAGES = ("sqlite3", "mcap")
 #: Standard message definitions, for bags that store none (sqlite3 bags recorded before Iron).
 TYPESTORE = get_typestore(Stores.ROS2_KILTED)
-#: The type hash written for a topic whose bag records none and whose type is not standard: rosbags' writer requires
-#: one, and all zeros cannot be mistaken for the hash of a real type.
-NO_TYPE_HASH = "RIHS01_" + "0" * 64
+#: rosbag2's encoding of a message definition, by rosbags' format; '' is what rosbag2 writes for a type whose
+#: definition it did not find (and, for the hash of a type it does not know, an empty string too).
+ENCODINGS = {
+    MessageDefinitionFormat.MSG: "ros2msg",
+    MessageDefinitionFormat.IDL: "ros2idl",
+    MessageDefinitionFormat.NONE: "",
+}
+#: The MCAP schema encodings rosbags reads (any other, such as Humble's 'unknown', makes it raise KeyError).
+_MCAP_ENCODINGS = ("ros2msg", "ros2idl", "omgidl", "")
 _POINT_FIELD, _HEADER, _TIME = "sensor_msgs/msg/PointField", "std_msgs/msg/Header", "builtin_interfaces/msg/Time"
 #: What a damaged storage file raises from inside rosbags while messages are read.
 _READ_ERRORS = (ReaderError, SerdeError, sqlite3.Error, struct.error, EOFError, KeyError, IndexError, ValueError)
@@ -66,7 +80,10 @@ class TopicSpec:
 
     topic: str
     msgtype: str
+    #: 'ros2msg' or 'ros2idl'; '' for a type the bag holds no definition of (then `msgdef` is '').
+    encoding: str
     msgdef: str
+    #: The RIHS01 type hash; '' when the bag records none.
     digest: str
     qos: tuple[Any, ...] = ()
     serialization_format: str = "cdr"
@@ -77,8 +94,10 @@ class TopicSpec:
 
     @property
     def described(self) -> bool:
-        """Whether the output can say what the messages hold (a type without a definition is copied all the same)."""
-        return bool(self.msgdef)
+        """Whether the output can say what the messages hold (a type without a definition is copied all the same).
+
+        An empty definition of encoding ros2msg describes a type without fields (std_msgs/msg/Empty)."""
+        return bool(self.encoding)
 
     def renamed(self, topic: str) -> TopicSpec:
         return dataclasses.replace(self, topic=topic)
@@ -97,18 +116,94 @@ class BagMessage:
 
 
 def _spec(connection: Connection) -> TopicSpec:
-    """The connection's own definition and type hash, or the standard ones when the bag stores none.
+    """The connection's own definition and type hash, or the standard ones when the bag stores no definition.
 
-    A type that is not standard keeps what the bag stores, an empty definition too (its raw messages are copied all
-    the same), and gets `NO_TYPE_HASH` when the bag records no hash.
+    A type that is not standard keeps what the bag stores: no definition and no hash stay none (its raw messages are
+    copied all the same), as rosbag2 declares a type it cannot describe.
     """
-    msgdef, digest = connection.msgdef.data, connection.digest
-    if not (msgdef and digest) and connection.msgtype in TYPESTORE.types:
+    encoding, msgdef, digest = ENCODINGS[connection.msgdef.format], connection.msgdef.data, connection.digest
+    if not encoding and connection.msgtype in TYPESTORE.types:
+        encoding = "ros2msg"
         msgdef = TYPESTORE.generate_msgdef(connection.msgtype, ros_version=2)[0]
         digest = TYPESTORE.hash_rihs01(connection.msgtype)
     qos = tuple(getattr(connection.ext, "offered_qos_profiles", ()))
     serialization = getattr(connection.ext, "serialization_format", "cdr")
-    return TopicSpec(connection.topic, connection.msgtype, msgdef, digest or NO_TYPE_HASH, qos, serialization)
+    return TopicSpec(connection.topic, connection.msgtype, encoding, msgdef, digest, qos, serialization)
+
+
+class _KnownSchemas(dict):
+    """An MCAP file's schemas by id, a schema of an encoding rosbags does not read (rosbag2's 'unknown', for a type
+    name it did not understand) kept as what it is: no definition."""
+
+    def __setitem__(self, key: int, schema: Schema) -> None:
+        if schema.encoding not in _MCAP_ENCODINGS:
+            schema = schema._replace(encoding="", data="")
+        super().__setitem__(key, schema)
+
+
+class _McapReader(McapReader):
+    """rosbags' MCAP reader, reading a schema of encoding 'unknown' as none."""
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path)
+        self.schemas = _KnownSchemas()
+
+
+def _hide_undescribed(connection: apsw.Connection) -> None:
+    """Shadow the message_definitions table of a new sqlite3 connection with a temporary view of its rows that hold a
+    definition: rosbag2 writes a row of encoding '' (or 'unknown') for a type it has no definition of, and rosbags
+    raises KeyError on it. Temporary objects are found before the file's, and the file stays read-only."""
+    tables = {row[0] for row in connection.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+    if "message_definitions" in tables:
+        connection.execute(
+            "CREATE TEMP VIEW message_definitions AS SELECT * FROM main.message_definitions "
+            "WHERE encoding IN ('ros2msg', 'ros2idl')"
+        )
+
+
+class _Sqlite3Reader(Sqlite3Reader):
+    """rosbags' sqlite3 reader, reading a message definition of encoding '' or 'unknown' as none.
+
+    rosbags reads the definitions through a connection of its own while it opens the file; `_hide_undescribed` is
+    installed for that moment only (apsw calls its connection hooks on every new connection).
+    """
+
+    def _open(self) -> None:
+        apsw.connection_hooks.append(_hide_undescribed)
+        try:
+            super()._open()
+        finally:
+            apsw.connection_hooks.remove(_hide_undescribed)
+
+
+class _DirectoryReader(DirectoryReader):
+    """rosbags' reader of a bag directory, with the storage readers above, reading every message of a topic.
+
+    rosbags pairs each topic of metadata.yaml with the storage file's by type, serialization format and QoS (and hash
+    when both record one), and silently skips the messages of a storage topic that no pair matches: a bag whose
+    metadata.yaml records other QoS than its storage file would read as empty. Here each wanted topic is also offered
+    with the storage file's QoS, so its messages are read as rosbag2 reads them, by topic.
+    """
+
+    STORAGE_PLUGINS: ClassVar = {"mcap": _McapReader, "sqlite3": _Sqlite3Reader}
+
+    def messages(
+        self, connections: Collection[Connection], start: int | None = None, stop: int | None = None
+    ) -> Iterator[tuple[Connection, int, bytes]]:
+        stored = [s for storage in self.storages for s in storage.connections]
+        as_stored = [
+            wanted._replace(ext=s.ext, digest="")
+            for wanted in connections
+            for s in stored
+            if (s.topic, s.msgtype) == (wanted.topic, wanted.msgtype)
+        ]
+        return super().messages([*connections, *as_stored], start, stop)
+
+
+class _Reader(Reader):
+    """rosbags' reader of a bag directory or a bare storage file, with the readers above."""
+
+    STORAGE_PLUGINS: ClassVar = {"dir": _DirectoryReader, ".mcap": _McapReader, ".db3": _Sqlite3Reader}
 
 
 class InputBag:
@@ -119,7 +214,7 @@ class InputBag:
         if not self.path.exists():
             raise BagError(f"{self.path}: no such bag (a rosbag2 directory, .mcap or .db3 file)")
         try:
-            self._reader = Reader(self.path)
+            self._reader = _Reader(self.path)
             self._reader.open()
         except (*_READ_ERRORS, FileNotFoundError) as error:
             raise BagError(f"{self.path}: not a readable rosbag2: {error}") from None
