@@ -3,12 +3,16 @@
 An option that is an estimator setting is checked by that setting's one rule (`core.settings.reason`, which the node's
 parameters and the estimator apply too), its words put under the option's name; the viewpoint by the message step's
 rule (`pipeline.messages.viewpoint_reason`, the node's too). Defaults come from `core.defaults`.
+
+`--params-file` reads the node's own ROS 2 parameter file (or a shipped preset) into the options that the command
+line leaves out; its values are judged by the same rules, in the node's words, under the file's name.
 """
 
 import argparse
 import math
 import shlex
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from ..core import defaults
@@ -155,3 +159,187 @@ def make_estimator(args: argparse.Namespace, radius: float):
     from ..core.estimator import NormalEstimator
 
     return NormalEstimator(**asdict(estimator_settings(args, radius)))
+
+
+# -- --params-file ----------------------------------------------------------------------------------------------------
+
+#: The node's name: the section of a parameter file that configures it (``triplet_normal:``, ``/ns/triplet_normal:``;
+#: ``/**:`` configures every node).
+NODE_NAME = "triplet_normal"
+#: Shipped presets, config/<name>.yaml.
+PRESETS = ("params", "depth_camera", "lidar")
+#: The node's parameters that are estimator settings or message options, by the option (argparse dest) they set.
+FILE_OPTIONS = {
+    "method": "method",
+    "checkpoint": "checkpoint",
+    "device": "device",
+    "batch_size": "batch_size",
+    "radius": "radius",
+    "k": "k",
+    "gate": "gate",
+    "bend": "bend",
+    "neighbours": "neighbours",
+    "range_scale": "range_scale",
+    "zeros_are_no_returns": "keep_zeros",
+    "orient": "no_orient",
+    "viewpoint": "viewpoint",
+}
+#: The node's parameters that only a running node has (statistics, RViz outputs), and those every ROS 2 node has:
+#: a parameter file may hold them, and the offline commands leave them alone.
+NODE_ONLY = frozenset(
+    {"stats_period", "normals_markers", "normals_markers_stride", "normals_markers_length", "normal_image"}
+    | {"use_sim_time", "start_type_description_service"}
+)
+#: Prefixes of the parameters rclpy makes for QoS overrides (``qos_overrides./topic.subscription.depth``).
+NODE_ONLY_PREFIXES = ("qos_overrides.",)
+#: A parameter that is neither an estimator setting nor the viewpoint, and its type (the node's words refuse others).
+_BOOLEANS = ("zeros_are_no_returns", "orient")
+
+
+def add_params_file(p: argparse.ArgumentParser) -> None:
+    """--params-file, and the parser kept on the namespace to learn which options the command line gave."""
+    p.add_argument(
+        "--params-file",
+        metavar="FILE",
+        help=f"the node's ROS 2 parameter file, or a shipped preset ({', '.join(PRESETS)}): its estimator and "
+        "orientation parameters, under the options given on the command line",
+    )
+    p.set_defaults(_parser=p)
+
+
+def apply_params_file(args: argparse.Namespace) -> None:
+    """Put the parameters of --params-file into the options the command line did not give; a bad file, parameter or
+    value is a UsageError naming the file. Drops the parser from `args` either way (it is no option to ship)."""
+    parser = vars(args).pop("_parser", None)
+    if args.params_file is None:
+        return
+    path = params_file_path(args.params_file)
+    given = _given_options(parser, args)
+    values = node_parameters(path)
+    for name, value in values.items():
+        dest = FILE_OPTIONS.get(name)
+        if dest is None or not hasattr(args, dest) or dest in given or (name == "radius" and "radius_rel" in given):
+            continue
+        setattr(args, dest, _as_option(name, value))
+    if not hasattr(args, "no_orient") and "viewpoint" not in given and not values.get("orient", defaults.ORIENT):
+        args.viewpoint = None  # estimate orients towards its --viewpoint only: a file's orient false means none
+
+
+def params_file_path(given: str) -> Path:
+    """The file --params-file names: an existing path, else a shipped preset by name."""
+    path = Path(given)
+    if path.is_file():
+        return path
+    if given in PRESETS:
+        for config in _config_dirs():
+            if (config / f"{given}.yaml").is_file():
+                return config / f"{given}.yaml"
+        raise UsageError(f"--params-file {given}: the shipped presets are not installed here (looked in config/)")
+    raise UsageError(f"--params-file {given}: no such file (nor a preset: {', '.join(PRESETS)})")
+
+
+def _config_dirs() -> list[Path]:
+    """Where config/ is: beside the package in a checkout, or share/<package>/config of the install prefix."""
+    here = Path(__file__).resolve()  # <repo>/triplet_normal_ros/cli/args.py or <prefix>/lib/pythonX.Y/site-packages/...
+    dirs = [here.parents[2] / "config"]
+    if len(here.parents) > 5:
+        dirs.append(here.parents[5] / "share" / here.parents[1].name / "config")
+    return dirs
+
+
+def node_parameters(path: Path) -> dict[str, Any]:
+    """The parameters `path` gives the node, flattened as rclpy names them (``a: {b: 1}`` is ``a.b``); each known to
+    the node and, for those the commands use, acceptable by the node's rule."""
+    sections = _sections(path)
+    ours = {name: section for name, section in sections.items() if _configures_the_node(name)}
+    if not ours:
+        raise UsageError(f"{path}: no parameters for the {NODE_NAME} node (sections: {', '.join(sections) or 'none'})")
+    values: dict[str, Any] = {}
+    for name, section in ours.items():  # in file order: a later section wins, as in rclpy
+        if not isinstance(section, Mapping) or not isinstance(section.get("ros__parameters"), Mapping):
+            raise UsageError(f"{path}: section {name} holds no ros__parameters mapping")
+        values.update(_flatten(section["ros__parameters"]))
+    for name, value in values.items():
+        why = _file_reason(name, value)
+        if why:
+            raise UsageError(f"{path}: {why}")
+    return values
+
+
+def _sections(path: Path) -> dict[str, Any]:
+    """The file's top-level mapping (node name -> section); a file that is not YAML is one UsageError."""
+    try:
+        import yaml
+    except ImportError:
+        raise UsageError("--params-file needs PyYAML (pip install pyyaml); ROS 2 installs it") from None
+    try:
+        loaded = yaml.safe_load(path.read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
+        raise UsageError(f"{path}: not a ROS 2 parameter file: {' '.join(str(error).split())}") from None
+    if not isinstance(loaded, Mapping):
+        raise UsageError(f"{path}: not a ROS 2 parameter file (expected 'node_name: ros__parameters: ...')")
+    return {str(name): section for name, section in loaded.items()}
+
+
+def _configures_the_node(section: str) -> bool:
+    """Whether a section configures the node: ``/**``, its name, or its name under a namespace (``/**/`` too)."""
+    return section in ("/**", "/*") or section.lstrip("/").rpartition("/")[2] == NODE_NAME
+
+
+def _flatten(parameters: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for key, value in parameters.items():
+        name = f"{prefix}{key}"
+        flat.update(_flatten(value, f"{name}.") if isinstance(value, Mapping) else {name: value})
+    return flat
+
+
+def _file_reason(name: str, value: Any) -> str | None:
+    """Why the node would refuse parameter `name` = `value`, in its words; None for a node-only parameter (the node
+    judges those), a refusal for a name the node does not have."""
+    if name in NODE_ONLY or name.startswith(NODE_ONLY_PREFIXES):
+        return None
+    if name not in FILE_OPTIONS:
+        return f"{name} is no parameter of the {NODE_NAME} node"
+    if name in _BOOLEANS:
+        return None if isinstance(value, bool) else f"{name} must be bool, got {type(value).__name__} {value!r}"
+    if name == "viewpoint":
+        from ..pipeline.messages import viewpoint_reason
+
+        return viewpoint_reason(value)
+    if name == "k":
+        why = reason("k", None if value == defaults.K else value)
+        return f"{why} ({defaults.K} means the method's default)" if why else None
+    return reason(name, value)
+
+
+def _as_option(name: str, value: Any) -> Any:
+    """A node parameter's value as the option it sets: the node's "" checkpoint and k 0 are an absent option, and
+    zeros_are_no_returns and orient are the negations --keep-zeros and --no-orient."""
+    if name in ("checkpoint", "k"):
+        return value or None
+    if name in _BOOLEANS:
+        return not value
+    if name == "viewpoint":
+        return [float(v) for v in value]
+    return value
+
+
+def _given_options(parser: argparse.ArgumentParser | None, args: argparse.Namespace) -> set[str]:
+    """The dests of the options the command line gave (an option given with its default value too): the subcommand's
+    arguments parsed again with every default suppressed."""
+    if parser is None:
+        return set()
+    argv = list(args.argv)
+    argv = argv[argv.index(args.command) + 1 :] if args.command in argv else argv
+    saved = [(action, action.default) for action in parser._actions]
+    saved_defaults, parser._defaults = parser._defaults, {}
+    try:
+        for action, _ in saved:
+            action.default = argparse.SUPPRESS
+        given, _ = parser.parse_known_args(argv)
+    finally:
+        for action, default in saved:
+            action.default = default
+        parser._defaults = saved_defaults
+    return set(vars(given))

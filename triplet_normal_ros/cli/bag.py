@@ -95,6 +95,7 @@ def add_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--no-orient", action="store_true", help="leave normal signs as estimated")
     checks.add_sensor_options(p)
+    checks.add_params_file(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -102,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.bag_output import partial_path
     from ..io.bags import InputBag
 
+    checks.apply_params_file(args)
     check_options(args)
     check_paths(args.input, args.output)
     resolve_checkpoint(args)

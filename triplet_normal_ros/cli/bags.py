@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import UsageError
+from . import args as checks
 from . import bag
 
 #: What marks a rosbag2: a directory holding metadata.yaml, or a bare storage file.
@@ -70,6 +71,7 @@ def target_for(root: Path, out: Path, source: Path) -> Path:
 def run(args: argparse.Namespace) -> int:
     from . import cluster
 
+    checks.apply_params_file(args)
     bag.check_options(args)
     cluster.check_workers(args.workers, args.address)
     _check_dirs(args.input, args.output)

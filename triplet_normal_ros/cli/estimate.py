@@ -83,6 +83,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "for hybrid and whole-ball pca on organized clouds; else on a GPU grid for organized clouds, else voxel; on a "
         "CPU kdtree)",
     )
+    checks.add_params_file(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -91,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.conventions import bbox_diagonal
     from ..io.cloud_files import read_cloud, read_indices, write_normals
 
+    checks.apply_params_file(args)
     _check(args)
     out = _output_path(args)
     cloud = read_cloud(args.input)
