@@ -21,7 +21,8 @@ setup(
     extras_require={
         "test": ["pytest", "hypothesis", "safetensors"],
         "train": ["trimesh", "manifold3d", "rtree", "tqdm", "matplotlib"],
-        "io": ["pypcd4", "rosbags"],
+        "io": ["pypcd4", "rosbags", "pyyaml"],
+        "cluster": ["ray"],
     },
     zip_safe=False,
     maintainer="triplet_normal_ros maintainers",

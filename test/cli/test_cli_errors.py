@@ -2,9 +2,14 @@
 
 Each subcommand is run through `cli.main.main` with bad values (rejected before any work: no training, no eval run)
 and `estimate` with empty, unreadable and cut-short files of every format; one case runs as a real process of the
-installed console script, to prove that no warning or traceback reaches the terminal.
+installed console script, to prove that no warning or traceback reaches the terminal. Every command whose options
+need an optional module runs as a real process with that module unimportable (a package on PYTHONPATH, ahead of the
+installed one, that raises what the interpreter raises for a missing module): one line naming the module and the pip
+extra that installs it, before any work.
 """
 
+import ast
+import os
 import struct
 import subprocess
 import sys
@@ -15,7 +20,7 @@ import pytest
 from helpers import write_points
 from pypcd4 import Encoding, PointCloud
 
-from triplet_normal_ros.cli.main import main
+from triplet_normal_ros.cli.main import EXTRAS, PACKAGE, ROS_MODULES, main
 from triplet_normal_ros.core.conventions import PCA_DEFAULT_K
 from triplet_normal_ros.io.cloud_files import write_normals
 
@@ -87,7 +92,7 @@ def test_estimate_bad_values(tmp_path: Path, capsys, ok_xyz: Path, args: list[st
         (["eval", "--points-per-cloud", "-3"], "--points-per-cloud must be >= 10"),
         (["eval", "--points-per-cloud", "nan"], "invalid int value"),
         (["eval", "--device", "tpu"], "device must be"),
-        (["eval", "--sets", "depth,kinect"], "--sets must name some of val, depth, lidar, pcpnet"),
+        (["eval", "--sets", "depth,kinect"], "--sets must name some of val, depth, fold, lidar, pcpnet"),
         (["eval", "--sets", ","], "--sets must name some of"),
         (["ablate", "--epochs", "0"], "--epochs must be >= 1"),
         (["ablate", "--epochs", "-1"], "--epochs must be >= 1"),
@@ -285,3 +290,61 @@ def test_compressed_cut_sizes_are_what_the_cases_claim(tmp_path: Path) -> None:
     body = data.index(b"DATA binary_compressed\n") + len(b"DATA binary_compressed\n")
     packed, unpacked = struct.unpack("<II", data[body : body + 8])
     assert unpacked == 40 * 12 and packed < unpacked and len(data) == body + 8 + packed
+
+
+# ---------------------------------------------------------------- optional modules not installed
+
+REPO = Path(__file__).resolve().parents[2]
+#: (command line, the module it needs): every command and option that imports an optional module.
+NEEDS = [
+    (["estimate", "c.xyz", "--workers", "2"], "ray"),
+    (["estimate", "c.xyz", "--address", "auto"], "ray"),
+    (["estimate", "c.xyz", "--out", "c.pcd"], "pypcd4"),
+    (["estimate", "c.xyz", "--params-file", "lidar"], "yaml"),
+    (["bag", "in", "out", "--topic", "/points"], "rosbags"),
+    (["bag", "in", "out", "--topic", "/points"], "std_msgs"),
+    (["bag", "in", "out", "--topic", "/points", "--params-file", "lidar"], "yaml"),
+    (["bags", "in", "out", "--topic", "/points"], "ray"),
+    (["bags", "in", "out", "--topic", "/points"], "rosbags"),
+    (["eval"], "trimesh"),
+    (["eval", "--out", "results.md"], "matplotlib"),
+    (["train"], "manifold3d"),
+    (["train"], "matplotlib"),
+    (["ablate"], "trimesh"),
+]
+
+
+def unimportable(root: Path, module: str) -> dict[str, str]:
+    """An environment in which importing `module` fails as it does where it is not installed."""
+    (root / module).mkdir(parents=True)
+    (root / module / "__init__.py").write_text(
+        f"raise ModuleNotFoundError(\"No module named '{module}'\", name='{module}')\n"
+    )
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (str(root), os.environ.get("PYTHONPATH")) if p)}
+
+
+@pytest.mark.slow  # a process per case, each importing the modules before the missing one
+@pytest.mark.parametrize(("argv", "module"), NEEDS, ids=[f"{a[0]}{'+'.join(a[1:2] + a[4:])}-{m}" for a, m in NEEDS])
+def test_a_missing_optional_module_is_one_line_naming_the_extra(tmp_path: Path, argv: list[str], module: str) -> None:
+    done = subprocess.run(
+        [str(SCRIPT), *argv], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+        env=unimportable(tmp_path / "site", module),
+    )  # fmt: skip
+    assert done.returncode == 1, done.stderr
+    assert_one_error_line(done.stdout, done.stderr)
+    if module in ROS_MODULES:
+        words = f"needs the ROS 2 message package '{module}', which is not installed: source a ROS 2 setup.bash"
+    else:
+        words = f"needs the Python module '{module}', which is not installed: pip install '{PACKAGE}[{EXTRAS[module]}]'"
+    assert done.stderr.strip() == f"triplet-normal: error: {argv[0]} {words}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["site"]  # nothing was written: no work began
+
+
+def test_every_extra_named_installs_its_module() -> None:
+    """The extras the errors name are setup.py's, and each holds the package that provides the module."""
+    tree = ast.parse((REPO / "setup.py").read_text())
+    call = next(n for n in ast.walk(tree) if isinstance(n, ast.keyword) and n.arg == "extras_require")
+    extras = ast.literal_eval(call.value)
+    distribution = {"yaml": "pyyaml"}
+    for module, extra in EXTRAS.items():
+        assert distribution.get(module, module) in extras[extra], (module, extra)

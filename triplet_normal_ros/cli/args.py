@@ -268,10 +268,8 @@ def node_parameters(path: Path) -> dict[str, Any]:
 
 def _sections(path: Path) -> dict[str, Any]:
     """The file's top-level mapping (node name -> section); a file that is not YAML is one UsageError."""
-    try:
-        import yaml
-    except ImportError:
-        raise UsageError("--params-file needs PyYAML (pip install pyyaml); ROS 2 installs it") from None
+    import yaml  # checked by main before any work (an optional module)
+
     try:
         loaded = yaml.safe_load(path.read_text())
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:

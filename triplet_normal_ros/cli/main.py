@@ -3,10 +3,15 @@
 This module holds the parser and the error policy; each subcommand lives in its own module with `add_arguments`
 and `run`. Heavy modules (torch, training data, matplotlib) are imported inside the handlers, so `--help` is instant
 and `estimate` works without the training extras. Every expected failure prints one line
-`triplet-normal: error: ...` on stderr: exit 2 for bad arguments, 1 for a bad file, checkpoint or device.
+`triplet-normal: error: ...` on stderr: exit 2 for bad arguments, 1 for a bad file, checkpoint or device, or a
+missing optional module. A command imports the optional modules its options need (`needed_modules`) before any work,
+so a missing one is that line, naming the module and the pip extra that installs it, rather than a traceback after
+minutes of work.
 """
 
 import argparse
+import importlib
+import re
 import sys
 from collections.abc import Sequence
 
@@ -14,6 +19,7 @@ from ..errors import TripletNormalError, UsageError
 from . import ablate, bag, bags, bench, estimate, evaluate, train
 
 PROG = "triplet-normal"
+PACKAGE = __package__.partition(".")[0]
 #: (name, module, help); train and ablate add their options only when they are the command (they import torch).
 COMMANDS = (
     ("estimate", estimate, "normals for one cloud file"),
@@ -25,6 +31,20 @@ COMMANDS = (
     ("bench", bench, "points/s per stage on a synthetic 100k-point cloud"),
 )
 _HEAVY = ("train", "ablate")
+#: Optional modules, by the extra of setup.py's extras_require that installs them.
+EXTRAS = {
+    "ray": "cluster",
+    "rosbags": "io",
+    "pypcd4": "io",
+    "yaml": "io",
+    "trimesh": "train",
+    "manifold3d": "train",
+    "rtree": "train",
+    "matplotlib": "train",
+}
+#: Modules that come with ROS 2 rather than from pip: `bag` and `bags` use its message packages.
+ROS_MODULES = ("builtin_interfaces", "std_msgs", "sensor_msgs")
+_BAG_MODULES = ("rosbags", *ROS_MODULES)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -43,7 +63,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return done.code if isinstance(done.code, int) else 2
     args.argv = argv  # eval and bench record the exact command in their results
     try:
+        import_needed(args)
         return int(args.handler(args) or 0)
+    except ModuleNotFoundError as error:
+        missing = missing_module(error, args.command)
+        if missing is None:  # not an optional module: a bug, with its traceback
+            raise
+        return fail(missing, 1)
     except UsageError as error:
         return fail(str(error), 2)
     except KeyboardInterrupt:
@@ -69,6 +95,42 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
             module.add_arguments(p)
         p.set_defaults(handler=module.run)
     return parser
+
+
+def needed_modules(args: argparse.Namespace) -> list[str]:
+    """The optional modules the command will import with these options (`EXTRAS`, `ROS_MODULES`)."""
+    cluster = ["ray"] if getattr(args, "workers", None) is not None or getattr(args, "address", None) else []
+    params = ["yaml"] if getattr(args, "params_file", None) else []
+    if args.command == "estimate":
+        pcd = ["pypcd4"] if str(args.out or "").lower().endswith(".pcd") else []
+        return [*params, *pcd, *cluster]
+    if args.command == "bag":
+        return [*params, *_BAG_MODULES]
+    if args.command == "bags":
+        return [*params, "ray", *_BAG_MODULES]
+    if args.command in ("eval", "ablate"):
+        return ["trimesh", "manifold3d", *(["matplotlib"] if args.command == "eval" and args.out else [])]
+    if args.command == "train":
+        return ["trimesh", "manifold3d", "matplotlib"]
+    return []
+
+
+def import_needed(args: argparse.Namespace) -> None:
+    """Import each module `needed_modules` names: a missing one raises ModuleNotFoundError before any work."""
+    for name in needed_modules(args):
+        importlib.import_module(name)
+
+
+def missing_module(error: ImportError, command: str) -> str | None:
+    """The one line for an optional module that cannot be imported, naming how to install it; None for others."""
+    name = error.name or next(iter(re.findall(r"No module named '([^']+)'", str(error))), "")
+    top = name.partition(".")[0]
+    if top in EXTRAS:
+        extra = f"{PACKAGE}[{EXTRAS[top]}]"
+        return f"{command} needs the Python module '{top}', which is not installed: pip install '{extra}'"
+    if top in ROS_MODULES:
+        return f"{command} needs the ROS 2 message package '{top}', which is not installed: source a ROS 2 setup.bash"
+    return None
 
 
 def fail(message: str, status: int) -> int:
