@@ -165,7 +165,7 @@ def test_update_section_replaces_only_its_block(tmp_path: Path) -> None:
 def test_eval_sets_rewrites_only_the_chosen_blocks(tmp_path: Path) -> None:
     """--sets lidar runs the LiDAR scans alone: no PCPNet directory needed, every other block left as it was."""
     doc = tmp_path / "docs" / "RESULTS.md"
-    for block in ("eval-val", "eval-depth", "eval-lidar", "eval-pcpnet"):
+    for block in ("eval-val", "eval-depth", "eval-fold", "eval-lidar", "eval-pcpnet"):
         update_section(doc, block, "kept")
     done = run_cli(
         "eval", "--quick", "--sets", "lidar", "--pcpnet-dir", tmp_path / "absent", "--out", doc,
@@ -173,7 +173,7 @@ def test_eval_sets_rewrites_only_the_chosen_blocks(tmp_path: Path) -> None:
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert "radius 0.25 m" in read_section(doc, "eval-lidar")
-    assert [read_section(doc, b) for b in ("eval-val", "eval-depth", "eval-pcpnet")] == ["kept"] * 3
+    assert [read_section(doc, b) for b in ("eval-val", "eval-depth", "eval-fold", "eval-pcpnet")] == ["kept"] * 4
 
 
 def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
@@ -195,7 +195,7 @@ def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
     assert "| fandisk100k | cad | 1.2 |" in pcp and "images/heatmap_fandisk.png" in pcp
     assert read_section(doc, "bench") == "kept"
     assert (doc.parent / "images" / "heatmap_fandisk.png").stat().st_size > 10_000
-    for kind, radius in (("depth", "0.05 m"), ("lidar", "0.25 m")):  # the simulated range images
+    for kind, radius in (("depth", "0.05 m"), ("fold", "0.05 m"), ("lidar", "0.25 m")):  # the simulated range images
         block = read_section(doc, f"eval-{kind}")
         assert block is not None and f"radius {radius}" in block
         cells = [[c.strip() for c in line.split("|")[1:-1]] for line in block.splitlines() if line.startswith("| ")]
@@ -205,6 +205,8 @@ def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
         share = rows["hybrid (F > 10, bend > 0.03)"]["network share"]
         assert share.endswith("%") and 0 <= float(share[:-1]) < 100  # hybrid says how much went to the network
         assert rows["learned"]["network share"] == "100.0%" and rows["PCA, k = 30"]["network share"] == "-"
+        ball = rows["hybrid, lite, ball survey"]["network share"]  # each hybrid also runs with the ball survey
+        assert ball.endswith("%") and 0 <= float(ball[:-1]) < 100
         answered = rows["PCA, window (integral images, the whole ball)"]["answered"]
         assert answered.endswith("%") and 50 < float(answered[:-1]) <= 100  # the share with a normal
 

@@ -9,7 +9,7 @@ from ..errors import UsageError
 from . import args as checks
 
 #: eval's data sets, in the order they run: validation shapes, simulated depth frames and LiDAR scans, PCPNet.
-SETS = ("val", "depth", "lidar", "pcpnet")
+SETS = ("val", "depth", "fold", "lidar", "pcpnet")
 
 DESCRIPTION = f"""MSAE (rad²) and RMSE (degrees) of the learned estimator, PCA at the same radius
 ({RADIUS_FRACTION:.0%} of the bbox diagonal) and PCA at its best radius per cloud (an oracle over 1-10%), on the

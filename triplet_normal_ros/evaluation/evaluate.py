@@ -189,7 +189,7 @@ def run(
     out: Path | None,
     quick: bool,
     command: str,
-    sets: tuple[str, ...] = ("val", "depth", "lidar", "pcpnet"),
+    sets: tuple[str, ...] = ("val", "depth", "fold", "lidar", "pcpnet"),
 ) -> None:
     """Each of `sets` (all by default): tables to stdout and, with `out`, into that markdown file (plus the fandisk
     heat map with pcpnet); blocks of sets not run are left as they are."""

@@ -1,9 +1,12 @@
 """Accuracy on simulated range images (simulation.range_scans): what robots see, at a metric radius.
 
-Two sets: Kinect-like depth frames at r = 0.05 m and 32-beam spinning-LiDAR scans at r = 0.25 m. Per frame, every
+Three sets: Kinect-like depth frames of rooms at r = 0.05 m, the same camera close to folds (boxes on a floor, stairs,
+a room corner, a table, a shelf, cylinders: `simulation.fold_scenes`) at r = 0.05 m, and 32-beam spinning-LiDAR scans
+at r = 0.25 m. Per frame, every
 method estimates at the same fixed-seed subset of valid pixels, with neighbourhoods from the whole frame; MSAE is
 reported overall and on the pixels near an edge (within the radius of another face), where the learned method's gain
-sits. The hybrid rows also say what fraction of points went through the network.
+sits. The hybrid rows also say what fraction of points went through the network, and each hybrid runs with both
+surveys: the integral-image windows (what an organized range image gets) and the ball (pool PCA through the KD-tree).
 """
 
 from __future__ import annotations
@@ -32,10 +35,17 @@ class RangeSet:
     title: str
     radius: float
     range_scale: float = 0.0  # the sensor preset's: config/lidar.yaml's growth of the ball with range
+    frames: int = FRAMES
 
 
 SETS = {
     "depth": RangeSet("depth", "Kinect-like 640x480 depth frames", DEPTH_RADIUS),
+    "fold": RangeSet(
+        "fold",
+        "Kinect-like 640x480 depth frames of close-range fold scenes (boxes, stairs, corner, table, shelf, cylinders)",
+        DEPTH_RADIUS,
+        frames=6,
+    ),
     "lidar": RangeSet(
         "lidar",
         "32-beam spinning-LiDAR scans (32x1800, 0.2° azimuth steps, 1.5 cm range noise)",
@@ -85,6 +95,7 @@ def _range_rows(checkpoint, device: str, k: int | None, radius: float, shipped) 
 
     learned = NormalEstimator("learned", radius=radius, checkpoint=checkpoint, device=device, k=k)
     hybrid = NormalEstimator("hybrid", radius=radius, checkpoint=checkpoint, device=device, k=k)
+    ball = {"neighbours": "kdtree"}
     rows = {
         "PCA, k = 30": NormalEstimator("pca", radius=radius, k=30, device=device),
         f"PCA, k = {POOL_FACTOR * learned.k} (the learned pool)": NormalEstimator(
@@ -93,10 +104,14 @@ def _range_rows(checkpoint, device: str, k: int | None, radius: float, shipped) 
         "PCA, window (integral images, the whole ball)": NormalEstimator("pca", radius=radius, device=device),
         "learned": learned,
         f"hybrid (F > {hybrid.gate:g}, bend > {hybrid.bend:g})": hybrid,
+        "hybrid, ball survey": NormalEstimator("hybrid", radius=radius, checkpoint=checkpoint, device=device, **ball),
     }
     if checkpoint == "default" and "lite" in shipped:
         rows["learned, lite"] = NormalEstimator("learned", radius=radius, checkpoint="lite", device=device)
         rows["hybrid, lite"] = NormalEstimator("hybrid", radius=radius, checkpoint="lite", device=device)
+        rows["hybrid, lite, ball survey"] = NormalEstimator(
+            "hybrid", radius=radius, checkpoint="lite", device=device, **ball
+        )
     return rows
 
 
@@ -107,8 +122,9 @@ def evaluate_set(kind: str, estimators: dict[str, NormalEstimator], quick: bool)
     from ..simulation import range_scans
 
     spec = SETS[kind]
-    count = QUICK_FRAMES if quick else FRAMES
-    frames = range_scans.depth_frames(count) if kind == "depth" else range_scans.lidar_scans(count)
+    count = QUICK_FRAMES if quick else spec.frames
+    make = {"depth": range_scans.depth_frames, "fold": range_scans.fold_frames, "lidar": range_scans.lidar_scans}
+    frames = make[kind](count)
     per_frame = QUICK_QUERIES if quick else QUERIES
     scores = [MethodScore(name, [], [], method=e.method) for name, e in estimators.items()]
     summary = {"frames": len(frames), "queries": 0, "near_edge": 0}
@@ -154,7 +170,7 @@ def set_markdown(kind: str, scores: list[MethodScore], summary: dict, header: st
         )
     return "\n".join(
         [
-            f"## Accuracy on simulated {'depth frames' if kind == 'depth' else 'LiDAR scans'} (`triplet-normal eval`)",
+            f"## Accuracy on simulated {_TITLES[kind]} (`triplet-normal eval`)",
             "",
             header,
             f"Frames: {summary['frames']} {spec.title} (docs/RANGE_SCANS.md, seeds 0-{summary['frames'] - 1}), "
@@ -169,6 +185,9 @@ def set_markdown(kind: str, scores: list[MethodScore], summary: dict, header: st
             *rows,
         ]
     )
+
+
+_TITLES = {"depth": "depth frames", "fold": "close-range fold frames", "lidar": "LiDAR scans"}
 
 
 def _growth(spec: RangeSet) -> str:

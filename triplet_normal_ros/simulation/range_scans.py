@@ -24,13 +24,16 @@ import numpy as np
 from .cache import default_cache_dir, writable_cache
 from .depth_camera import depth_frame
 from .edges import EDGE_RADIUS
+from .fold_scenes import KINDS as FOLD_KINDS
+from .fold_scenes import fold_frame
 from .lidar import lidar_scan
 from .range_frame import RangeFrame
 from .seeds import derive_seed
 
 CODE_VERSION = 1  # bump when a scene, the sensor models or the edge mask change: stale cache entries are then ignored
-#: Frame seeds of each use, so no frame is both trained and scored on: eval 0 (frames 0-2), the hybrid gate study
-#: 100 (docs/tools/gate_study.py), training 200, training validation 300.
+#: Frame seeds of each use, so no frame is both trained and scored on: eval 0 (frames 0-2; fold frames 0-5), the
+#: hybrid gate and survey studies 100 (docs/tools/gate_study.py, docs/tools/fold_study.py), training 200, training
+#: validation 300.
 TRAIN_SEED, VAL_SEED = 200, 300
 #: What a cached frame stores besides its name and kind.
 _ARRAYS = ("points", "normals", "face", "near_edge", "viewpoint")
@@ -94,6 +97,19 @@ def depth_frames(
     params = {"width": width, "height": height}
     make = partial(depth_frame, width=width, height=height)
     return _cached_frames("depth", count, seed, params, (height, width), make, cache_dir)
+
+
+def fold_frames(
+    count: int, seed: int = 0, width: int = 640, height: int = 480, cache_dir: str | Path | None = None
+) -> list[RangeFrame]:
+    """`count` close-range fold frames (`fold_scenes`), frame i of kind FOLD_KINDS[i mod 6], cached like the rest."""
+    frames = []
+    for i in range(count):
+        kind = FOLD_KINDS[i % len(FOLD_KINDS)]
+        params = {"width": width, "height": height, "scene": kind}
+        make = partial(fold_frame, kind=kind, width=width, height=height)
+        frames += _cached_frames(f"fold-{kind}", 1, derive_seed(seed, i), params, (height, width), make, cache_dir)
+    return frames
 
 
 def lidar_scans(
