@@ -10,8 +10,10 @@ STAMP := $(VENV)/.installed
 # elsewhere PyPI's CUDA build (several GB). README, "Which torch", says how to choose the CPU or CUDA build.
 # setuptools<80: newer releases silently break `colcon build --symlink-install`.
 # ROS 2 comes from PyPI wheels: Kilted in .venv/, Jazzy (the LTS; Fast DDS 2) in .venv-jazzy/.
-KILTED := ros-rclpy==9.1.2 ros-sensor-msgs==5.5.1 ros-rmw-fastrtps-cpp==9.3.3 ros-diagnostic-msgs==5.5.1
-JAZZY := ros-rclpy==7.1.6 ros-sensor-msgs==5.3.6 ros-rmw-fastrtps-cpp==8.4.3 ros-diagnostic-msgs==5.3.6
+KILTED := ros-rclpy==9.1.2 ros-sensor-msgs==5.5.1 ros-rmw-fastrtps-cpp==9.3.3 ros-diagnostic-msgs==5.5.1 \
+	ros-visualization-msgs==5.5.1 ros-lifecycle-msgs==2.3.0
+JAZZY := ros-rclpy==7.1.6 ros-sensor-msgs==5.3.6 ros-rmw-fastrtps-cpp==8.4.3 ros-diagnostic-msgs==5.3.6 \
+	ros-visualization-msgs==5.3.6 ros-lifecycle-msgs==2.0.3
 COMMON := \
 	torch==2.13.0 \
 	numpy==2.4.6 scipy==1.17.1 numba==0.68.1 llvmlite==0.50.0 \
@@ -79,7 +81,8 @@ test: venv lint
 # `make test-jazzy`: on Jazzy, what differs between distributions: the colcon-built node as a process, its transport
 # (full 640x480 frames from another process), parameters, the launch file, the per-message step and `bag`.
 JAZZY_TESTS := test/ros/test_transport.py test/ros/test_large_clouds.py test/ros/test_node_process.py \
-	test/ros/test_params.py test/ros/test_one_rule.py test/test_launch.py test/pipeline test/cli/test_bag.py
+	test/ros/test_params.py test/ros/test_one_rule.py test/test_launch.py test/ros/test_launch_process.py \
+	test/ros/test_managed_node.py test/pipeline test/cli/test_bag.py
 test-jazzy: venv-jazzy
 	$(JAZZY_PY) -m pytest $(JAZZY_TESTS) -q --strict-markers
 

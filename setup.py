@@ -1,4 +1,5 @@
-"""ament_python package: the ROS 2 node `node` and the offline CLI `triplet-normal`."""
+"""ament_python package: the ROS 2 node `node`, its managed (lifecycle) form `managed_node`, and the offline CLI
+`triplet-normal`."""
 
 from glob import glob
 
@@ -32,6 +33,7 @@ setup(
     entry_points={
         "console_scripts": [
             f"node = {PACKAGE}.ros.node:main",
+            f"managed_node = {PACKAGE}.ros.managed_node:main",
             f"triplet-normal = {PACKAGE}.cli.main:main",
         ],
     },

@@ -82,13 +82,13 @@ def _loss_support_deg() -> float:
 ALLOWED: dict[tuple[str, str], tuple[str, Callable[[], set[float]]]] = {
     ("5", "s"): (
         "the statistics window (`stats_period`'s default) and the node's log throttle",
-        lambda: {SPEC_BY_NAME["stats_period"].default, _constant("ros/node.py", "THROTTLE_S")},
+        lambda: {SPEC_BY_NAME["stats_period"].default, _constant("ros/serving.py", "THROTTLE_S")},
     ),
     ("0.1", "s"): (
         "how often the idle worker loop looks for a stop",
-        lambda: {_constant("ros/node.py", "SERVE_POLL_S")},
+        lambda: {_constant("ros/serving.py", "SERVE_POLL_S")},
     ),
-    ("1.5", "s"): ("the shutdown watchdog's wait", lambda: {_constant("ros/node.py", "JOIN_TIMEOUT_S")}),
+    ("1.5", "s"): ("the shutdown watchdog's wait", lambda: {_constant("ros/serving.py", "JOIN_TIMEOUT_S")}),
     ("20", "s"): (
         "how long `--address` waits for a connection",
         lambda: {_constant("cli/cluster.py", "CONNECT_TIMEOUT_S")},

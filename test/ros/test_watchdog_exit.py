@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from triplet_normal_ros.ros.node import EXIT_ABANDONED, JOIN_TIMEOUT_S
+from triplet_normal_ros.ros.runner import EXIT_ABANDONED, JOIN_TIMEOUT_S
 
 pytestmark = pytest.mark.slow  # a node process
 
@@ -29,12 +29,13 @@ STUCK_NODE = """
 import sys, threading
 import rclpy
 from rclpy.signals import SignalHandlerOptions
-from triplet_normal_ros.ros import node as tn
+from triplet_normal_ros.ros.node import TripletNormalNode
+from triplet_normal_ros.ros.runner import _install_stop_handlers
 
 rclpy.init(args=sys.argv, signal_handler_options=SignalHandlerOptions.NO)
 stop = threading.Event()
-served = tn.TripletNormalNode(serve_in_caller=True)
-tn._install_stop_handlers(stop, served)
+served = TripletNormalNode(serve_in_caller=True)
+_install_stop_handlers(stop, served)
 print("serving: blocked", flush=True)
 threading.Event().wait()
 """

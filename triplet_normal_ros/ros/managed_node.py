@@ -1,0 +1,98 @@
+"""The managed (lifecycle) node ``managed_node``: the plain node's serving (ros/serving.py) behind the ROS 2 node
+lifecycle, for stacks that bring their nodes up through a lifecycle manager (nav2_lifecycle_manager).
+
+    configure   declare and validate the parameters, load the checkpoint, measure the expected throughput
+    activate    subscribe to ``input``; ``output`` and ``/diagnostics`` publish; statistics every stats_period
+    deactivate  unsubscribe and drop the waiting cloud; the estimator stays loaded
+    cleanup     drop the estimator (the model is freed once no estimate uses it)
+    shutdown    stop serving: the process exits 0
+
+A configure that fails (bad parameter, missing checkpoint) logs its reason and returns FAILURE: the node stays
+unconfigured and alive, and a parameter set then is checked and used by the next configure. Same name, parameters,
+topics, threads and exit codes as the plain node (docs/NODE.md, "Managed node (lifecycle)").
+"""
+
+from __future__ import annotations
+
+from typing import Any, NoReturn
+
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+
+from . import runner
+from .serving import ConfigError, ServingMixin, package_location
+
+NODE_NAME = "triplet_normal"
+
+
+class ManagedNode(ServingMixin, LifecycleNode):
+    """``triplet_normal`` as a lifecycle node; starts unconfigured. The worker runs in a thread of its own, or, with
+    ``serve_in_caller``, in whoever calls `serve` (the console entry point: the process's main thread)."""
+
+    def __init__(self, serve_in_caller: bool = False, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        self.get_logger().info(f"running triplet_normal_ros from {package_location()}")
+        self._init_serving()
+        if not serve_in_caller:
+            self._start_worker()
+        self.get_logger().info("unconfigured: waiting for the configure transition")
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Load the estimator; the publishers are made on the first configure and kept (they send nothing while
+        inactive), so an estimate still finishing after a cleanup never publishes through a destroyed one."""
+        try:
+            active = self._configure()
+            if self._publisher is None:
+                self._create_outputs(self.create_lifecycle_publisher)
+        except (ConfigError, RuntimeError, ValueError) as error:  # ValueError: a QoS override rclpy rejects
+            self.get_logger().error(f"configure failed: {error}")
+            return TransitionCallbackReturn.FAILURE
+        self._active = active
+        self.get_logger().info(f"configured: {self._describe(*active)}")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Let the publishers send, then subscribe."""
+        result = super().on_activate(state)
+        self._subscribe()
+        self._start_stats()
+        self.get_logger().info(f"active: {self._ready_line()}")
+        return result
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop answering: unsubscribe, stop the statistics and drop the cloud waiting in the mailbox. An estimate in
+        flight finishes, but its answer goes to a publisher that no longer sends."""
+        self._stop_answering()
+        self._mailbox.get(timeout=0)
+        self.get_logger().info("inactive: not subscribed; the estimator stays loaded")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._active = None
+        self.get_logger().info("unconfigured: the estimator is released")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Cancel the estimate in flight and close the mailbox: the serving loop returns and the process exits 0
+        once this transition's answer is out (`runner._spin`)."""
+        self._stop_answering()
+        self.stop()
+        self.get_logger().info("shutting down")
+        return TransitionCallbackReturn.SUCCESS
+
+    def _stop_answering(self) -> None:
+        """Unsubscribe and stop the statistics timer (deactivate, shutdown)."""
+        if self._subscription is not None:
+            self.destroy_subscription(self._subscription)
+            self._subscription = None
+        if self._stats_timer is not None:
+            self.destroy_timer(self._stats_timer)
+            self._stats_timer = None
+
+
+def main(args: list[str] | None = None) -> NoReturn:
+    """Console entry point ``managed_node``: exit codes as the plain node's (docs/NODE.md, "Shutdown")."""
+    runner.main(ManagedNode, NODE_NAME, args)
+
+
+if __name__ == "__main__":
+    main()
