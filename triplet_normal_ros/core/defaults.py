@@ -37,6 +37,14 @@ ORIENT = True
 VIEWPOINT = (0.0, 0.0, 0.0)
 #: Seconds between the node's statistics lines (and its /diagnostics status).
 STATS_PERIOD = 5.0
+#: The node's RViz outputs are off until asked for: each costs the worker time on every cloud while RViz listens.
+NORMALS_MARKERS = False
+#: Every n-th point with a normal gets a segment. A prime shares no factor with a sensor's row width (640, 1024,
+#: 2048, ...), so in an organized cloud the picks spread over the image instead of lining up in columns.
+NORMALS_MARKERS_STRIDE = 23
+#: Metres: short enough that neighbouring segments of a depth frame seldom cross, long enough to see their direction.
+NORMALS_MARKERS_LENGTH = 0.02
+NORMAL_IMAGE = False
 #: The settings config/lidar.yaml sets on top of these (a spinning LiDAR: a wider ball that grows with range).
 LIDAR = {"radius": LIDAR_RADIUS, "range_scale": LIDAR_RANGE_SCALE}
 

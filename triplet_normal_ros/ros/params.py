@@ -5,7 +5,8 @@ The node turns each :class:`ParamSpec` into a ``ParameterDescriptor`` (type, con
 parameter that is an estimator setting is judged by that setting's one rule (`core.settings.reason`), the same rule
 `triplet-normal estimate`, `bag` and `bags` and the estimator itself apply, so the descriptors carry no ranges of
 their own: rclpy would check a range first and answer in its own words. The viewpoint's rule is the message step's
-(`pipeline.messages.viewpoint_reason`), which `bag` shares; the rest are the node's alone.
+(`pipeline.messages.viewpoint_reason`), which `bag` shares; the RViz outputs' rules are beside the code that draws
+them (`evaluation.visuals`); the rest are the node's alone.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from ..core.conventions import PCA_DEFAULT_K
 from ..core.device import device_type
 from ..core.plan import checkpoint_for
 from ..core.settings import Settings, reason
+from ..evaluation.visuals import MAX_SEGMENTS, VisualSettings, length_reason, stride_reason
 from ..pipeline.messages import MessageSettings, viewpoint_reason
 
 #: Parameters whose change builds a new estimator (loading the checkpoint); the rest apply to the next cloud in place.
@@ -29,6 +31,12 @@ RELOAD_PARAMS = frozenset({"method", "checkpoint", "device"})
 K_METHOD_DEFAULT = defaults.K
 #: The parameters that are estimator settings, each judged by its rule in `core.settings`.
 SETTING_PARAMS = frozenset(f.name for f in fields(Settings))
+#: The rules of the parameters that are no estimator setting, each kept where its value is used.
+NODE_RULES = {
+    "viewpoint": viewpoint_reason,
+    "normals_markers_stride": stride_reason,
+    "normals_markers_length": length_reason,
+}
 #: Any value no rule accepts: asking a rule about it yields the words of what it does accept.
 _NOTHING = object()
 
@@ -36,7 +44,7 @@ _NOTHING = object()
 def accepted(name: str) -> str:
     """What parameter `name` accepts, in its rule's own words ('a finite number > 0 (metres)'): the descriptor's
     constraints, which can then never disagree with the rule."""
-    why = viewpoint_reason(_NOTHING) if name == "viewpoint" else reason(name, _NOTHING)
+    why = NODE_RULES[name](_NOTHING) if name in NODE_RULES else reason(name, _NOTHING)
     return (why or "").partition(" must be ")[2].rpartition(", got ")[0]
 
 
@@ -163,6 +171,37 @@ SPECS: tuple[ParamSpec, ...] = (
         "",
         True,
     ),
+    ParamSpec(
+        "normals_markers",
+        bool,
+        defaults.NORMALS_MARKERS,
+        "Publish 'normals_markers' (visualization_msgs/MarkerArray): one LINE_LIST marker, a segment along the normal "
+        "of every n-th point that has one, coloured like the normal map; built only while something subscribes.",
+    ),
+    ParamSpec(
+        "normals_markers_stride",
+        int,
+        defaults.NORMALS_MARKERS_STRIDE,
+        f"Every n-th point with a normal gets a segment (raised where that would give more than {MAX_SEGMENTS:,}); "
+        "a prime keeps an organized cloud's picks from lining up in columns.",
+        None,
+        accepted("normals_markers_stride"),
+    ),
+    ParamSpec(
+        "normals_markers_length",
+        float,
+        defaults.NORMALS_MARKERS_LENGTH,
+        "Length of each normal segment in metres.",
+        None,
+        accepted("normals_markers_length"),
+    ),
+    ParamSpec(
+        "normal_image",
+        bool,
+        defaults.NORMAL_IMAGE,
+        "Publish 'normal_image' (sensor_msgs/Image, rgb8): an organized cloud's normals as the demo's normal map, "
+        "holes black; nothing for unorganized clouds; built only while something subscribes.",
+    ),
 )
 
 SPEC_BY_NAME: dict[str, ParamSpec] = {s.name: s for s in SPECS}
@@ -186,6 +225,10 @@ class NodeSettings:
     orient: bool = SPEC_BY_NAME["orient"].default
     viewpoint: tuple[float, float, float] = tuple(SPEC_BY_NAME["viewpoint"].default)
     stats_period: float = SPEC_BY_NAME["stats_period"].default
+    normals_markers: bool = SPEC_BY_NAME["normals_markers"].default
+    normals_markers_stride: int = SPEC_BY_NAME["normals_markers_stride"].default
+    normals_markers_length: float = SPEC_BY_NAME["normals_markers_length"].default
+    normal_image: bool = SPEC_BY_NAME["normal_image"].default
 
     def checkpoint_in_force(self) -> str:
         """The checkpoint the network methods load: the parameter, or for "" the shipped one for the device
@@ -210,6 +253,12 @@ class NodeSettings:
         """What one cloud is answered with (`pipeline.messages.answer_message`): the estimator's snapshot, the
         orientation and the no-return rule."""
         return MessageSettings(self.estimator_settings(), self.orient, self.viewpoint, self.zeros_are_no_returns)
+
+    def visual_settings(self) -> VisualSettings:
+        """What the RViz outputs draw of each answer (`ros/visuals.py`)."""
+        return VisualSettings(
+            self.normals_markers, self.normals_markers_stride, self.normals_markers_length, self.normal_image
+        )
 
 
 def _check_type(spec: ParamSpec, value: Any) -> str | None:
@@ -236,8 +285,8 @@ def _check_value(name: str, value: Any) -> str | None:
         return _check_k(value)
     if name in SETTING_PARAMS:
         return reason(name, value)
-    if name == "viewpoint":
-        return viewpoint_reason(value)
+    if name in NODE_RULES:
+        return NODE_RULES[name](value)
     return None
 
 
