@@ -100,6 +100,24 @@ def test_the_compiled_survey_is_the_torch_survey(name: str) -> None:
     assert torch.equal(gates[0], gates[1])
 
 
+@pytest.mark.parametrize("name", sorted(FRAMES))
+def test_the_compiled_slope_windows_are_the_torch_slope_windows(name: str) -> None:
+    """Hybrid's second windows, fitted to the slope of the first survey plane, compiled and in torch: the same boxes,
+    validity and counts, and the same planes to roundoff."""
+    images, fits = _fits(name)
+    first = [
+        torch.where(f.valid.unsqueeze(-1), survey_and_cue(i, f)[0], 0.0) for i, f in zip(images, fits, strict=True)
+    ]
+    reference, compiled = (image.pca_on_slope(normal) for image, normal in zip(images, first, strict=True))
+    for a, b in zip(reference.box, compiled.box, strict=True):
+        assert torch.equal(a, b)
+    assert torch.equal(reference.valid, compiled.valid) and torch.equal(reference.count, compiled.count)
+    valid = reference.valid
+    assert float((1 - (reference.normal[valid] * compiled.normal[valid]).sum(dim=1).abs()).max()) < 1e-12
+    shrunk = [(b - a) < (fb - fa) for a, b, fa, fb in ((reference.box[0], reference.box[1], *fits[0].box[:2]),)]
+    assert bool(shrunk[0].any()), "some window on these frames sees its surface obliquely and is fitted to it"
+
+
 @pytest.mark.parametrize("name", ["simulated depth", "simulated lidar"])
 def test_compiled_window_pca_stays_near_ball_pca_from_the_kdtree(name: str) -> None:
     """The windows stand for balls: against exact normals, their error stays within a bound of the ball's (a whole

@@ -40,6 +40,8 @@ from .windows import (
 )
 
 _TINY = np.finfo(np.float64).tiny
+#: The `slope` argument of `_pixels` that sizes windows from the range alone.
+_NO_SLOPE = np.zeros((0, 3))
 #: (up, down, left, right) of the four half windows, then the four quarter windows.
 _SIDES = np.array(ONE_SIDED, dtype=np.int64)
 
@@ -64,6 +66,7 @@ class CompiledImage:
             self.points.numpy(), self.pitch_row.numpy(), self.pitch_col.numpy(), float(radius), float(range_scale)
         )
         self.fit = out
+        self._radius, self._scaled = float(radius), range_scale != 0
         self.table = torch.from_numpy(out["table"])
         self.counts = self.table[..., :1].contiguous()
         self.first = self.table[..., :4].contiguous()
@@ -71,6 +74,17 @@ class CompiledImage:
         t = {name: torch.from_numpy(out[name]) for name in ("normal", "eigvals", "count", "valid", "mean", "cov")}
         box = tuple(torch.from_numpy(out["box"][i]) for i in range(4))
         reach = float(radius) if range_scale == 0 else torch.from_numpy(out["reach"])
+        return WindowPCA(t["normal"], t["eigvals"], t["count"], t["valid"], reach, t["mean"], t["cov"], box)
+
+    def pca_on_slope(self, normal: torch.Tensor) -> WindowPCA:
+        """`MomentImage.pca_on_slope`, after `pca`."""
+        out = window_pca_on_slope(
+            self.points.numpy(), self.fit, self.pitch_row.numpy(), self.pitch_col.numpy(), self._radius,
+            normal.numpy(),
+        )  # fmt: skip
+        t = {name: torch.from_numpy(out[name]) for name in ("normal", "eigvals", "count", "valid", "mean", "cov")}
+        box = tuple(torch.from_numpy(out["box"][i]) for i in range(4))
+        reach = self._radius if not self._scaled else torch.from_numpy(out["reach"])
         return WindowPCA(t["normal"], t["eigvals"], t["count"], t["valid"], reach, t["mean"], t["cov"], box)
 
 
@@ -82,6 +96,7 @@ def warm() -> None:
     pitch = [ray_pitch(grid, axis, 1 << 16, 4.0) for axis in (0, 1)]
     fit = window_pca(grid, pitch[0], pitch[1], 0.3, 0.1)
     survey(fit["table"], fit["offset"], fit)
+    window_pca_on_slope(grid, fit, pitch[0], pitch[1], 0.3, np.nan_to_num(fit["normal"]))
 
 
 def window_pca(
@@ -108,18 +123,49 @@ def window_pca(
     _bands(_row_jumps, width, ranges.T, along_col.T, row_jumps.transpose(1, 0, 2))  # down the columns
     col_walls, row_walls = _summed_area(col_jumps)[..., 0], _summed_area(row_jumps)[..., 0]
     n = height * width
-    fit = {
-        "normal": np.empty((n, 3)), "eigvals": np.empty((n, 3)), "count": np.empty(n),
-        "valid": np.zeros(n, dtype=np.bool_), "mean": np.empty((n, 3)), "cov": np.empty((n, 6)),
-        "box": np.empty((4, n), dtype=np.int64), "reach": np.empty(n),
-    }  # fmt: skip
+    fit = _empty_fit(n)
     _bands(
-        _pixels, height, table, ranges, reach, rows, cols, col_walls, row_walls, float(radius),
+        _pixels, height, table, points, ranges, reach, rows, cols, col_walls, row_walls, float(radius), _NO_SLOPE,
         *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
         pieces=4,
     )  # fmt: skip
     fit["mean"] += offset
-    return {"table": table, "offset": offset, **fit}
+    sizing = {"ranges": ranges, "reach_grid": reach, "col_walls": col_walls, "row_walls": row_walls}
+    return {"table": table, "offset": offset, **fit, **sizing}
+
+
+def window_pca_on_slope(
+    points: np.ndarray,
+    out: dict[str, np.ndarray],
+    pitch_row: np.ndarray,
+    pitch_col: np.ndarray,
+    radius: float,
+    slope: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """`window_pca`'s windows again, with half-widths fitted to the slope of the plane `slope` (H·W, 3; zero where
+    there is none), reusing `out`'s tables, walls and reach (`windows.MomentImage.pca_on_slope`)."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    height, width = points.shape[:2]
+    n = height * width
+    fit = _empty_fit(n)
+    _bands(
+        _pixels, height, out["table"], points, out["ranges"], out["reach_grid"],
+        np.ascontiguousarray(pitch_row, dtype=np.float64), np.ascontiguousarray(pitch_col, dtype=np.float64),
+        out["col_walls"], out["row_walls"], float(radius), np.ascontiguousarray(slope, dtype=np.float64),
+        *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
+        pieces=4,
+    )  # fmt: skip
+    fit["mean"] += out["offset"]
+    return fit
+
+
+def _empty_fit(n: int) -> dict[str, np.ndarray]:
+    """The `WindowPCA` fields of n pixels as numpy arrays for `_pixels` to fill."""
+    return {
+        "normal": np.empty((n, 3)), "eigvals": np.empty((n, 3)), "count": np.empty(n),
+        "valid": np.zeros(n, dtype=np.bool_), "mean": np.empty((n, 3)), "cov": np.empty((n, 6)),
+        "box": np.empty((4, n), dtype=np.int64), "reach": np.empty(n),
+    }  # fmt: skip
 
 
 def _bands(kernel, lines: int, *args, pieces: int = 1) -> None:
@@ -250,9 +296,7 @@ def _nan_max(a, b):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _box(table, top, bottom, left, right, k):
     """Channel k's sum over the inclusive box, from a 3-D summed-area table."""
-    return (
-        table[bottom + 1, right + 1, k] - table[top, right + 1, k] - table[bottom + 1, left, k] + table[top, left, k]
-    )
+    return table[bottom + 1, right + 1, k] - table[top, right + 1, k] - table[bottom + 1, left, k] + table[top, left, k]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -369,45 +413,106 @@ def _eigen(a00, a01, a02, a11, a12, a22, eigvals, normal):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _pixels(
-    table, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, radius,
+    table, points, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, radius, slope,
     normal, eigvals, count, valid, mean, cov, box, flat_reach, lo, hi,
 ):  # fmt: skip
-    """Each pixel's window, its moments, PCA and validity (`MomentImage.pca` and `windows._window_pca`)."""
-    height, width = ranges.shape
+    """Each pixel's window, its moments, PCA and validity (`MomentImage.pca` and `windows._window_pca`); with a
+    `slope` (H·W, 3) rather than an empty one, each axis' half-width is first divided by the stretch of that plane along
+    it (`MomentImage.pca_on_slope`)."""
+    width = ranges.shape[1]
     for r in range(lo, hi):
         for c in range(width):
             i = r * width + c
-            angle = math.asin(min(reach[r, c] / ranges[r, c], 1.0)) * AREA_MATCH
-            half_row = min(max(_round_or_zero(angle / pitch_row[r]), 0.0), float(height))
-            half_col = min(max(_round_or_zero(angle / pitch_col[c]), 0.0), float(width))
-            top, bottom, left, right = _window(
-                r, c, np.int64(half_row), np.int64(half_col), table, col_walls, row_walls, height, width
-            )
-            box[0, i], box[1, i], box[2, i], box[3, i] = top, bottom, left, right
+            half_row, half_col = _halves(ranges, reach, pitch_row, pitch_col, r, c)
+            if slope.shape[0]:
+                sx, sy, sz = slope[i, 0], slope[i, 1], slope[i, 2]
+                half_row = _on_slope(half_row, _stretch(points, ranges, r, c, 1, 0, sx, sy, sz))
+                half_col = _on_slope(half_col, _stretch(points, ranges, r, c, 0, 1, sx, sy, sz))
             flat_reach[i] = radius if np.isnan(reach[r, c]) else reach[r, c]
-            k = _box(table, top, bottom, left, right, 0)
-            count[i] = k
-            scale = 1.0 / max(k, 1.0)
-            mx = _box(table, top, bottom, left, right, 1) * scale
-            my = _box(table, top, bottom, left, right, 2) * scale
-            mz = _box(table, top, bottom, left, right, 3) * scale
-            mean[i, 0], mean[i, 1], mean[i, 2] = mx, my, mz
-            cov[i, 0] = _box(table, top, bottom, left, right, 4) * scale - mx * mx
-            cov[i, 1] = _box(table, top, bottom, left, right, 5) * scale - mx * my
-            cov[i, 2] = _box(table, top, bottom, left, right, 6) * scale - mx * mz
-            cov[i, 3] = _box(table, top, bottom, left, right, 7) * scale - my * my
-            cov[i, 4] = _box(table, top, bottom, left, right, 8) * scale - my * mz
-            cov[i, 5] = _box(table, top, bottom, left, right, 9) * scale - mz * mz
-            _eigen(cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5], eigvals[i], normal[i])
-            on_row = _box(table, r, r, left, right, 0)
-            on_col = _box(table, top, bottom, c, c, 0)
-            valid[i] = (
-                k >= MIN_NEIGHBOURS
-                and np.isfinite(normal[i, 0])
-                and on_row < k
-                and on_col < k
-                and eigvals[i, 1] > COLLINEAR_RATIO * eigvals[i, 2]
-            )
+            outputs = (normal, eigvals, count, valid, mean, cov, box)
+            _fit_pixel(table, col_walls, row_walls, r, c, half_row, half_col, *outputs)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _halves(ranges, reach, pitch_row, pitch_col, r, c):
+    """The window's half-widths in pixels per axis from the ball's angular radius (`MomentImage._half_widths`)."""
+    height, width = ranges.shape
+    angle = math.asin(min(reach[r, c] / ranges[r, c], 1.0)) * AREA_MATCH
+    half_row = min(max(_round_or_zero(angle / pitch_row[r]), 0.0), float(height))
+    half_col = min(max(_round_or_zero(angle / pitch_col[c]), 0.0), float(width))
+    return np.int64(half_row), np.int64(half_col)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _on_slope(half, stretch):
+    """The half-width divided by the stretch, rounded half to even, at least one pixel (or the half-width if less)."""
+    return max(np.int64(np.round(half / stretch)), min(half, 1))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _ray(points, ranges, r, c, k):
+    """Component k of pixel (r, c)'s unit ray, NaN at a hole (`MomentImage.rays`)."""
+    return points[r, c, k] / ranges[r, c]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _stretch(points, ranges, r, c, dr, dc, nx, ny, nz):
+    """`windows._stretch` of one pixel along the axis stepping (dr, dc), with `windows._ray_turn`'s neighbours."""
+    height, width = ranges.shape
+    ahead_ok = r + dr < height and c + dc < width
+    behind_ok = r - dr >= 0 and c - dc >= 0
+    turn = np.empty(3)
+    for k in range(3):
+        own = _ray(points, ranges, r, c, k)
+        ahead = _ray(points, ranges, r + dr, c + dc, k) if ahead_ok else np.nan
+        behind = _ray(points, ranges, r - dr, c - dc, k) if behind_ok else np.nan
+        ahead = ahead if np.isfinite(ahead) else own
+        behind = behind if np.isfinite(behind) else own
+        step = ahead - behind
+        turn[k] = 0.0 if np.isnan(step) else step
+    dx, dy, dz = _ray(points, ranges, r, c, 0), _ray(points, ranges, r, c, 1), _ray(points, ranges, r, c, 2)
+    dx, dy, dz = (0.0 if np.isnan(dx) else dx), (0.0 if np.isnan(dy) else dy), (0.0 if np.isnan(dz) else dz)
+    along_ray = turn[0] * dx + turn[1] * dy + turn[2] * dz
+    tx, ty, tz = turn[0] - dx * along_ray, turn[1] - dy * along_ray, turn[2] - dz * along_ray
+    length = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if not length > 0:
+        return 1.0
+    across = abs(nx * tx + ny * ty + nz * tz) / max(length, _TINY)
+    facing = max(abs(nx * dx + ny * dy + nz * dz), _TINY)
+    tangent = min(across / facing, GRAZING_TAN)
+    return math.sqrt(1.0 + tangent * tangent)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _fit_pixel(table, col_walls, row_walls, r, c, half_row, half_col, normal, eigvals, count, valid, mean, cov, box):
+    """One pixel's window at these half-widths, its moments, PCA and validity, into row r·W + c of the outputs."""
+    height, width = table.shape[0] - 1, table.shape[1] - 1
+    i = r * width + c
+    top, bottom, left, right = _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width)
+    box[0, i], box[1, i], box[2, i], box[3, i] = top, bottom, left, right
+    k = _box(table, top, bottom, left, right, 0)
+    count[i] = k
+    scale = 1.0 / max(k, 1.0)
+    mx = _box(table, top, bottom, left, right, 1) * scale
+    my = _box(table, top, bottom, left, right, 2) * scale
+    mz = _box(table, top, bottom, left, right, 3) * scale
+    mean[i, 0], mean[i, 1], mean[i, 2] = mx, my, mz
+    cov[i, 0] = _box(table, top, bottom, left, right, 4) * scale - mx * mx
+    cov[i, 1] = _box(table, top, bottom, left, right, 5) * scale - mx * my
+    cov[i, 2] = _box(table, top, bottom, left, right, 6) * scale - mx * mz
+    cov[i, 3] = _box(table, top, bottom, left, right, 7) * scale - my * my
+    cov[i, 4] = _box(table, top, bottom, left, right, 8) * scale - my * mz
+    cov[i, 5] = _box(table, top, bottom, left, right, 9) * scale - mz * mz
+    _eigen(cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5], eigvals[i], normal[i])
+    on_row = _box(table, r, r, left, right, 0)
+    on_col = _box(table, top, bottom, c, c, 0)
+    valid[i] = (
+        k >= MIN_NEIGHBOURS
+        and np.isfinite(normal[i, 0])
+        and on_row < k
+        and on_col < k
+        and eigvals[i, 1] > COLLINEAR_RATIO * eigvals[i, 2]
+    )
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -462,9 +567,11 @@ def _angles(grid, out, step_row, step_col, lo, hi):
     for r in range(lo, hi):
         for c in range(out.shape[1]):
             ax, ay, az = grid[r, c, 0], grid[r, c, 1], grid[r, c, 2]
-            bx, by, bz = grid[r + step_row, c + step_col, 0], grid[r + step_row, c + step_col, 1], grid[
-                r + step_row, c + step_col, 2
-            ]
+            bx, by, bz = (
+                grid[r + step_row, c + step_col, 0],
+                grid[r + step_row, c + step_col, 1],
+                grid[r + step_row, c + step_col, 2],
+            )
             na = max(math.sqrt(ax * ax + ay * ay + az * az), 1e-8)
             nb = max(math.sqrt(bx * bx + by * by + bz * bz), 1e-8)
             cos = (ax / na) * (bx / nb) + (ay / na) * (by / nb) + (az / na) * (bz / nb)

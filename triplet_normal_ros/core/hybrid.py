@@ -83,6 +83,7 @@ def window_hybrid(
     with call.timed("survey"):
         fit = image.pca(s.radius, s.range_scale)
         survey, cue = survey_and_cue(image, fit)
+        survey = survey_on_slope(image, fit, survey)
         finite = image.finite.reshape(-1)
         valid = fit.valid & finite
         top, bottom, left, right = fit.box
@@ -122,6 +123,21 @@ def survey_and_cue(image: MomentImage, fit: WindowPCA) -> tuple[torch.Tensor, St
 
     normal, z, bend = fused.survey(image.table.numpy(), image.offset.numpy(), image.fit)
     return torch.from_numpy(normal), Structure(torch.from_numpy(z), torch.from_numpy(bend))
+
+
+def survey_on_slope(image: MomentImage, fit: WindowPCA, survey: torch.Tensor) -> torch.Tensor:
+    """The survey's normal from windows fitted to the slope of its first plane (`windows.on_slope`), where they fit one.
+
+    A window sized from the range reaches past the ball on a surface seen at a grazing angle, across a fold where the
+    range is continuous; the window fitted to the slope of the first survey's plane covers the ball on that surface.
+    The first plane is the ray-noise plane, not PCA's: on a far, noisy surface PCA's axis tips toward the ray and
+    would read as a slope that is not there. The gate still reads the first windows (their parts see the fold), so
+    which points reach the network does not change; the points it leaves to the survey get the better plane.
+    Measured on fold and room frames eval never scores: docs/RESULTS.md, "Folds".
+    """
+    first = torch.where(fit.valid.unsqueeze(-1), survey, 0.0)
+    sloped = image.pca_on_slope(first)
+    return torch.where(sloped.valid.unsqueeze(-1), ray_noise_normal(sloped), survey)
 
 
 class Structure(NamedTuple):

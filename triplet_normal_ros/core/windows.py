@@ -52,6 +52,7 @@ ONE_SIDED = (
     (1, 0, 1, 1), (0, 1, 1, 1), (1, 1, 1, 0), (1, 1, 0, 1),
     (1, 0, 1, 0), (1, 0, 0, 1), (0, 1, 1, 0), (0, 1, 0, 1),
 )  # fmt: skip
+_TINY = torch.finfo(torch.float64).tiny
 #: Channels of the summed-area table: count, x, y, z, xx, xy, xz, yy, yz, zz.
 _CHANNELS = 10
 
@@ -92,6 +93,7 @@ class MomentImage:
         self.finite = torch.isfinite(points).all(dim=-1)
         self.pitch_row, self.pitch_col = pitch
         self.range = torch.where(self.finite, points.norm(dim=-1), torch.nan)
+        self.rays = points / self.range.unsqueeze(-1)  # unit rays, NaN at holes
         self.offset = points[self.finite].mean(dim=0) if bool(self.finite.any()) else points.new_zeros(3)
         self.points = torch.where(self.finite.unsqueeze(-1), points - self.offset, 0.0)
         self.table = _summed_area(self._moments())
@@ -110,11 +112,23 @@ class MomentImage:
         reach = float(radius) if range_scale == 0 else (self.range * range_scale).clamp_min(radius)
         half_row, half_col = self._half_widths(reach)
         walls = _WallTable(self.range, *self._jump_thresholds(reach))
+        flat = reach if isinstance(reach, float) else torch.nan_to_num(reach.reshape(-1), nan=radius)
+        self._sizing = (half_row, half_col, walls, flat)
+        return self._fit(half_row, half_col, walls, flat)
+
+    def pca_on_slope(self, normal: torch.Tensor) -> WindowPCA:
+        """After `pca`: every pixel's window again, with half-widths fitted to the slope of the plane `normal` (N, 3),
+        zero where there is none (`on_slope`); the walls and the ball's reach are `pca`'s."""
+        half_row, half_col, walls, flat = self._sizing
+        rows, cols = on_slope(half_row, half_col, normal.view(self.height, self.width, 3), self.rays)
+        return self._fit(rows, cols, walls, flat)
+
+    def _fit(self, half_row: torch.Tensor, half_col: torch.Tensor, walls: _WallTable, reach) -> WindowPCA:
+        """Window PCA at these half-widths: the largest clear boxes, one-sided where a wall cut them."""
         box = _largest_clear_boxes(half_row, half_col, walls, self.height, self.width)
         box = _one_sided_where_shrunk(box, half_row, half_col, walls, self.counts, self.height, self.width)
         sums = box_sums(self.table, *box)
-        flat = reach if isinstance(reach, float) else torch.nan_to_num(reach.reshape(-1), nan=radius)
-        return _window_pca(sums, self.offset, box, flat, self._spans_lines(box, sums[:, 0]))
+        return _window_pca(sums, self.offset, box, reach, self._spans_lines(box, sums[:, 0]))
 
     def _spans_lines(self, box: tuple[torch.Tensor, ...], count: torch.Tensor) -> torch.Tensor:
         """Whether each window's points lie on more than one image row and more than one column. A window holds its
@@ -144,6 +158,51 @@ class MomentImage:
         rows = torch.nan_to_num(torch.round(angle / per_row), nan=0.0).clamp(0, float(self.height))
         cols = torch.nan_to_num(torch.round(angle / per_col), nan=0.0).clamp(0, float(self.width))
         return rows.to(torch.int64), cols.to(torch.int64)
+
+
+def on_slope(half_row: torch.Tensor, half_col: torch.Tensor, normal: torch.Tensor, rays: torch.Tensor):
+    """(H, W) half-widths that cover the ball on the surface of the plane `normal` (H, W, 3), not in the image plane.
+
+    A window sized from the range covers the ball's angular radius. On a surface seen obliquely along an image axis,
+    one pixel step along that axis spans 1 / cos(incidence along the axis) times as much surface, so the window
+    reaches that much past the ball, across a fold where the range is continuous: a tread meeting its riser, a floor
+    meeting a box. Each axis' half-width is divided by that stretch (`_stretch`), rounded half to even, but never
+    below one pixel (a window must span two scan lines); a zero normal keeps the half-width.
+    """
+    halves = []
+    for half, dim in ((half_row, 0), (half_col, 1)):
+        stretch = _stretch(normal, rays, _ray_turn(rays, dim))
+        shrunk = torch.round(half.to(torch.float64) / stretch).to(torch.int64)
+        halves.append(torch.maximum(shrunk, half.clamp_max(1)))
+    return halves[0], halves[1]
+
+
+def _ray_turn(rays: torch.Tensor, dim: int) -> torch.Tensor:
+    """(H, W, 3) how each pixel's ray turns along image axis `dim`: the next pixel's ray minus the previous one's, the
+    pixel's own ray standing in for a neighbour that is a hole or off the image; zero where that leaves a NaN."""
+    size = rays.shape[dim]
+    index = torch.arange(size, device=rays.device).view((-1, 1, 1) if dim == 0 else (1, -1, 1))
+    ahead, behind = torch.roll(rays, -1, dims=dim), torch.roll(rays, 1, dims=dim)
+    ahead = torch.where(torch.isfinite(ahead) & (index < size - 1), ahead, rays)
+    behind = torch.where(torch.isfinite(behind) & (index > 0), behind, rays)
+    return torch.nan_to_num(ahead - behind, nan=0.0)
+
+
+def _stretch(normal: torch.Tensor, rays: torch.Tensor, turn: torch.Tensor) -> torch.Tensor:
+    """(H, W) surface spanned per pixel step along the axis, over that of a surface facing the ray: sqrt(1 + tan²),
+    tan = |n·t| / |n·d| with d the ray and t the turn made perpendicular to it and unit, at most GRAZING_TAN; 1 where
+    the turn is zero."""
+    d = torch.nan_to_num(rays, nan=0.0)
+    dx, dy, dz = d.unbind(dim=-1)
+    tx, ty, tz = turn.unbind(dim=-1)
+    nx, ny, nz = normal.unbind(dim=-1)
+    along_ray = tx * dx + ty * dy + tz * dz
+    tx, ty, tz = tx - dx * along_ray, ty - dy * along_ray, tz - dz * along_ray
+    length = torch.sqrt(tx * tx + ty * ty + tz * tz)
+    across = (nx * tx + ny * ty + nz * tz).abs() / length.clamp_min(_TINY)
+    facing = (nx * dx + ny * dy + nz * dz).abs().clamp_min(_TINY)
+    tangent = torch.where(length > 0, (across / facing).clamp_max(GRAZING_TAN), 0.0)
+    return torch.sqrt(1.0 + tangent * tangent)
 
 
 def _summed_area(channels: torch.Tensor) -> torch.Tensor:
