@@ -17,6 +17,7 @@ import signal
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
+from conftest import STARTUP_S
 from fuzz_clouds import NORMALS, SeededChoices, expected_xyz, field_bits, fuzzed_cloud, node_refusal
 from probe_client import ProbeClient
 from sensor_msgs.msg import PointCloud2
@@ -141,7 +142,7 @@ def test_the_reference_clouds_are_what_they_claim() -> None:
 
 def test_a_stream_of_fuzzed_clouds_never_stops_the_node(start_node) -> None:
     node = start_node(PARAMS, {"input": IN, "output": OUT}, reliable_topics=(IN,))
-    assert node.wait_for_log("ready:", 60), node.log
+    assert node.wait_for_log("ready:", STARTUP_S), node.log
     sent = answered = malformed = 0
     reasons: set[str] = set()
     with ProbeClient(IN, OUT) as client:

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import PACKAGE, REPO, site_packages
+from conftest import PACKAGE, REPO, STARTUP_S, site_packages
 
 from triplet_normal_ros.ros.node_process import node_env
 
@@ -23,7 +23,7 @@ from triplet_normal_ros.ros.node_process import node_env
 @pytest.mark.slow  # colcon build and a node process
 def test_the_node_process_imports_the_installed_package(start_node, install_prefix: Path) -> None:
     node = start_node({"method": "pca"}, {"input": "/tn_copy/in", "output": "/tn_copy/out"})
-    assert node.wait_for_log("ready:", 90), node.log
+    assert node.wait_for_log("ready:", STARTUP_S), node.log
     found = re.search(r"running triplet_normal_ros from (\S+)", node.log)
     assert found, node.log
     assert Path(found[1]) == site_packages(install_prefix) / PACKAGE

@@ -10,6 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from conftest import STARTUP_S
 from probe_client import ProbeClient, cropped
 from rclpy.parameter_client import AsyncParameterClient
 from test_launch import OWN, PARAMS_FILE, PRESET, applied, launched, own_params
@@ -31,7 +32,7 @@ def test_the_installed_node_runs_as_launched_in_a_namespace_on_sim_time_at_debug
     given = launched(monkeypatch, {**arguments, PARAMS_FILE: str(own)})
     preset, *rest = given.parameters
     node = start_node(Path(preset), {}, extra_args=replace(given, parameters=tuple(rest)).command_line())
-    assert node.wait_for_log("ready:", 120), node.log
+    assert node.wait_for_log("ready:", STARTUP_S), node.log
     (ready,) = [line for line in node.log.splitlines() if "ready:" in line]
     assert "ready: /robot1/input -> /robot1/output," in ready, ready
     lidar = applied([preset])

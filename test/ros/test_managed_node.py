@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import NodeProcess
+from conftest import STARTUP_S, NodeProcess
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from probe_client import ProbeClient, cropped
@@ -28,7 +28,7 @@ IN, OUT = "/tn_life/points", "/tn_life/normals"
 PCA_PARAMS = {"method": "pca", "radius": 0.03, "k": 24, "device": "cpu", "stats_period": 1.0}
 EXECUTABLE = "managed_node"
 #: Hang guards only: a transition or an answer not back in this long is not coming, however slow the machine.
-WAIT_S = 60.0
+WAIT_S = STARTUP_S
 
 
 class LifecycleProbe(ProbeClient):

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import PACKAGE, NodeProcess, installed_env, running_node, site_packages
+from conftest import PACKAGE, STARTUP_S, NodeProcess, installed_env, running_node, site_packages
 from helpers import angles_deg, ball_pca, held_out_depth_frame
 from probe_client import ProbeClient, cropped
 from scipy.spatial import cKDTree
@@ -317,7 +317,7 @@ def test_sigint_during_an_estimate_cancels_it_and_exits_cleanly(start_node, fram
     topics = ("/tn_int/in", "/tn_int/out")
     params = {"method": "learned", "k": 24, "batch_size": 1, "stats_period": 0.5}
     node = start_node(params, {"input": topics[0], "output": topics[1]}, reliable_topics=(topics[0],))
-    assert node.wait_for_log("ready:", 120), node.log
+    assert node.wait_for_log("ready:", STARTUP_S), node.log
     with ProbeClient(*topics) as c:
         assert c.wait_for_node(30)
         cloud = cropped(frame, 120, 160, 240, 320).to_cloud(c.header())
@@ -345,7 +345,7 @@ def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, insta
     """
     shipped = install_prefix / "share" / PACKAGE / "config" / "params.yaml"
     node = start_node(shipped, {"input": "/tn_term/in", "output": "/tn_term/out"})
-    assert node.wait_for_log("ready:", 60), node.log
+    assert node.wait_for_log("ready:", STARTUP_S), node.log
     shipped = NodeSettings().checkpoint_in_force()  # the device's shipped checkpoint: lite on a CPU
     assert f"method=hybrid, checkpoint={shipped}" in node.log  # the node's default method
     rate = re.search(

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import PACKAGE
+from conftest import PACKAGE, STARTUP_S
 from helpers import angles_deg, ball_pca
 from probe_client import ProbeClient
 from real_recordings import OUSTER, OUSTER_TOPIC, clouds, preset
@@ -22,7 +22,7 @@ pytestmark = pytest.mark.slow  # colcon install, a 6 MB cloud over DDS
 def test_the_lidar_preset_node_answers_a_real_ouster_scan(start_node, install_prefix: Path) -> None:
     installed = install_prefix / "share" / PACKAGE / "config" / "lidar.yaml"
     node = start_node(installed, {"input": "/tn_lidar/in", "output": "/tn_lidar/out"})
-    assert node.wait_for_log("ready:", 120), node.log
+    assert node.wait_for_log("ready:", STARTUP_S), node.log
     assert "range_scale=0.03" in node.log and "zeros_are_no_returns=true" in node.log
     cloud = clouds(OUSTER, OUSTER_TOPIC)[0]
     with ProbeClient("/tn_lidar/in", "/tn_lidar/out") as client:
@@ -61,7 +61,7 @@ def test_a_scan_not_destaggered_gets_pools_and_one_warning(start_node, install_p
     per cloud), and its normals are those of plain PCA over the preset's balls."""
     params = {**preset("lidar"), "method": "pca"}
     node = start_node(params, {"input": "/tn_stagger/in", "output": "/tn_stagger/out"})
-    assert node.wait_for_log("ready:", 120), node.log
+    assert node.wait_for_log("ready:", STARTUP_S), node.log
     cloud = clouds(OUSTER, OUSTER_TOPIC)[0]
     rows = np.frombuffer(bytes(cloud.data), np.uint8).reshape(cloud.height, cloud.width, cloud.point_step)
     shift = OUSTER_SHIFT[np.arange(cloud.height) % 4]

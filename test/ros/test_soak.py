@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from conftest import NodeProcess, installed_env, params_yaml
+from conftest import STARTUP_S, NodeProcess, installed_env, params_yaml
 from helpers import angles_deg, ball_pca
 from sensor_msgs.msg import PointCloud2
 
@@ -108,7 +108,7 @@ def outcome(install_prefix, ros_env, tmp_path_factory) -> Outcome:
     )
     settled: list[AfterFlood] = []
     try:
-        assert node.wait_for_log("ready:", 120), node.log
+        assert node.wait_for_log("ready:", STARTUP_S), node.log
         with CheckedClient(IN, OUT, cloud_pool()) as client:
             assert client.wait_for_node(60), "the node's topics and parameter services never matched"
 
