@@ -151,3 +151,40 @@ def test_a_failed_configure_leaves_the_node_unconfigured_alive_and_fixable(start
         assert probe.change(Transition.TRANSITION_INACTIVE_SHUTDOWN)
     assert node.proc.wait(WAIT_S) == 0, node.log[-3000:]
     assert "configured: method=pca" in node.log and "Traceback" not in node.log
+
+
+def test_a_failed_activate_says_why_and_leaves_the_node_inactive_and_alive(start_node) -> None:
+    """A QoS override rclpy rejects only when the input is subscribed: activate fails with its reason in the log
+    (rclpy alone would return ERROR without a word and drop the node to unconfigured), the node stays inactive with
+    nothing subscribed, and it still obeys its transitions."""
+    bad = f"qos_overrides.{IN}.subscription.reliability:=sometimes"
+    node = start_node(PCA_PARAMS, {"input": IN, "output": OUT}, extra_args=["-p", bad], executable=EXECUTABLE)
+    assert node.wait_for_log("unconfigured: waiting", WAIT_S), node.log
+    with LifecycleProbe() as probe:
+        assert probe.change(Transition.TRANSITION_CONFIGURE)
+        assert not probe.change(Transition.TRANSITION_ACTIVATE)
+        assert probe.state() == "inactive"
+        assert node.proc.poll() is None, "the process died with its activate"
+        (line,) = [line for line in node.log.splitlines() if "activate failed" in line]
+        assert line.startswith("[ERROR]") and "sometimes" in line, line
+        assert probe.subscribed(False)
+        assert probe.change(Transition.TRANSITION_INACTIVE_SHUTDOWN)
+    assert node.proc.wait(WAIT_S) == 0, node.log[-3000:]
+    assert "Traceback" not in node.log
+
+
+def test_a_wrongly_typed_output_qos_override_fails_configure_with_its_reason(start_node) -> None:
+    """rclpy raises a ParameterException for it while configure makes the output: configure fails with the reason
+    and the node stays unconfigured and alive."""
+    bad = f"qos_overrides.{OUT}.publisher.depth:=deep"
+    node = start_node(PCA_PARAMS, {"input": IN, "output": OUT}, extra_args=["-p", bad], executable=EXECUTABLE)
+    assert node.wait_for_log("unconfigured: waiting", WAIT_S), node.log
+    with LifecycleProbe() as probe:
+        assert not probe.change(Transition.TRANSITION_CONFIGURE)
+        assert probe.state() == "unconfigured"
+        assert node.proc.poll() is None, "the process died with its configure"
+        (line,) = [line for line in node.log.splitlines() if "configure failed" in line]
+        assert line.startswith("[ERROR]") and "deep" in line, line
+        assert probe.change(Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
+    assert node.proc.wait(WAIT_S) == 0, node.log[-3000:]
+    assert "Traceback" not in node.log

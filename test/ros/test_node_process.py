@@ -381,3 +381,13 @@ def test_startup_errors_are_one_clear_line_and_exit_1(start_node, params: dict, 
     assert code == 1, node.log
     assert len(lines) == 1 and message in lines[0], node.log
     assert "Traceback" not in node.log
+
+
+def test_a_wrongly_typed_qos_override_is_one_clear_line_and_exit_1(start_node) -> None:
+    """rclpy raises a ParameterException, not a RuntimeError, for an override of the wrong type."""
+    node = start_node({"method": "pca"}, {}, extra_args=["-p", "qos_overrides./output.publisher.depth:=deep"])
+    code = node.proc.wait(STARTUP_S)  # the output is made after the estimator, which may compile its kernels first
+    lines = [line for line in node.log.splitlines() if "cannot start" in line]
+    assert code == 1, node.log
+    assert len(lines) == 1 and "deep" in lines[0], node.log
+    assert "Traceback" not in node.log

@@ -7,9 +7,13 @@ lifecycle, for stacks that bring their nodes up through a lifecycle manager (nav
     cleanup     drop the estimator (the model is freed once no estimate uses it)
     shutdown    stop serving: the process exits 0
 
-A configure that fails (bad parameter, missing checkpoint) logs its reason and returns FAILURE: the node stays
-unconfigured and alive, and a parameter set then is checked and used by the next configure. Same name, parameters,
-topics, threads and exit codes as the plain node (docs/NODE.md, "Managed node (lifecycle)").
+A configure that fails (bad parameter, missing checkpoint, a QoS override rclpy rejects) logs ``configure failed:
+<reason>`` and returns FAILURE: the node stays unconfigured and alive, and a parameter set then is checked and used by
+the next configure. An activate that fails (a QoS override on ``input`` rclpy rejects) logs ``activate failed:
+<reason>``, undoes what it began and returns FAILURE: the node stays inactive, estimator loaded. rclpy turns any other
+exception of a transition into ERROR without a word and then calls `on_error`, which logs, releases the estimator and
+leaves the node unconfigured with nothing subscribed or sending. Same name, parameters, topics, threads and exit codes
+as the plain node (docs/NODE.md, "Managed node (lifecycle)").
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from typing import Any, NoReturn
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from . import runner
-from .serving import ConfigError, ServingMixin, package_location
+from .serving import ServingMixin, describe_error, package_location
 
 NODE_NAME = "triplet_normal"
 
@@ -43,18 +47,23 @@ class ManagedNode(ServingMixin, LifecycleNode):
             active = self._configure()
             if self._publisher is None:
                 self._create_outputs(self.create_lifecycle_publisher)
-        except (ConfigError, RuntimeError, ValueError) as error:  # ValueError: a QoS override rclpy rejects
-            self.get_logger().error(f"configure failed: {error}")
-            return TransitionCallbackReturn.FAILURE
+        except Exception as error:  # rclpy would swallow it silently: say why, and stay unconfigured
+            return self._failed("configure", error)
         self._active = active
         self.get_logger().info(f"configured: {self._describe(*active)}")
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Let the publishers send, then subscribe."""
-        result = super().on_activate(state)
-        self._subscribe()
-        self._start_stats()
+        """Let the publishers send, then subscribe. On failure (e.g. a QoS override on ``input`` rclpy rejects) what
+        was begun is undone, so the node stays inactive as it was: silent, unsubscribed, estimator loaded."""
+        try:
+            result = super().on_activate(state)
+            self._subscribe()
+            self._start_stats()
+        except Exception as error:  # rclpy would swallow it silently and leave the publishers sending
+            self._stop_answering()
+            super().on_deactivate(state)
+            return self._failed("activate", error)
         self.get_logger().info(f"active: {self._ready_line()}")
         return result
 
@@ -78,6 +87,21 @@ class ManagedNode(ServingMixin, LifecycleNode):
         self.stop()
         self.get_logger().info("shutting down")
         return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """A transition raised what it did not catch (rclpy logs nothing of it): reset to a clean unconfigured node,
+        with nothing subscribed or sending and the estimator released, so that configure can start afresh."""
+        self._stop_answering()
+        super().on_deactivate(state)
+        self._mailbox.get(timeout=0)
+        self._active = None
+        self.get_logger().error(f"a transition from {state.label} failed; unconfigured, the estimator is released")
+        return TransitionCallbackReturn.SUCCESS
+
+    def _failed(self, transition: str, error: Exception) -> TransitionCallbackReturn:
+        """Log why `transition` failed, in one line; FAILURE, which takes the node back to the state it came from."""
+        self.get_logger().error(f"{transition} failed: {describe_error(error)}")
+        return TransitionCallbackReturn.FAILURE
 
     def _stop_answering(self) -> None:
         """Unsubscribe and stop the statistics timer (deactivate, shutdown)."""

@@ -16,12 +16,13 @@ from collections.abc import Callable
 from typing import NoReturn, Protocol
 
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from .serving import JOIN_TIMEOUT_S
+from .serving import JOIN_TIMEOUT_S, describe_error
 from .transport import ProfileChoice, choose_profile
 
 #: How long shutdown waits for the executor thread (one spin timeout and its own shutdown, with room to spare).
@@ -72,8 +73,8 @@ def run(make_node: Callable[..., Node], name: str, args: list[str] | None) -> in
         stop.set()
         spinner.join(EXECUTOR_JOIN_S)
         return EXIT_FAILED if failed else EXIT_OK
-    except (RuntimeError, ValueError) as error:  # a ConfigError; or rclpy rejecting a QoS override on the command line
-        get_logger(name).fatal(f"cannot start: {error}")
+    except (RuntimeError, ValueError, ParameterException) as error:  # a ConfigError, or a QoS override rclpy rejects
+        get_logger(name).fatal(f"cannot start: {describe_error(error)}")
         return EXIT_FAILED
     finally:
         stop.set()

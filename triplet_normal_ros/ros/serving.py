@@ -83,6 +83,16 @@ def _reason(error: ParameterException) -> str:
     return f"parameter {', '.join(names)}: {message}" if names else message
 
 
+def describe_error(error: Exception) -> str:
+    """One line for a node that cannot start or a transition that failed: the reason alone for what the node
+    expects (its own ConfigError, rclpy's parameter and QoS override errors), the type too for anything else."""
+    if isinstance(error, ParameterException):
+        return _reason(error)
+    if isinstance(error, (RuntimeError, ValueError)):
+        return str(error)
+    return f"{type(error).__name__}: {error}"
+
+
 def _failure(reason: str) -> SetParametersResult:
     return SetParametersResult(successful=False, reason=reason)
 
@@ -140,8 +150,10 @@ class ServingMixin:
         try:
             for spec in SPECS:
                 declared = self.has_parameter(spec.name)
-                param = self.get_parameter(spec.name) if declared else self.declare_parameter(
-                    spec.name, spec.default, _descriptor(spec)
+                param = (
+                    self.get_parameter(spec.name)
+                    if declared
+                    else self.declare_parameter(spec.name, spec.default, _descriptor(spec))
                 )
                 values[spec.name] = param.value
         except ParameterException as error:
