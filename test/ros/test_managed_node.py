@@ -188,3 +188,25 @@ def test_a_wrongly_typed_output_qos_override_fails_configure_with_its_reason(sta
         assert probe.change(Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
     assert node.proc.wait(WAIT_S) == 0, node.log[-3000:]
     assert "Traceback" not in node.log
+
+
+def test_a_start_up_value_rclpy_rejects_fails_configure_until_the_parameter_is_set_right(start_node) -> None:
+    """``radius: 1`` (an integer for a double) in the params file: rclpy refuses to declare it. Configure fails with
+    that reason, the parameters after it are still declared with their overrides, and once radius is set to a good
+    value through the parameter service, configure succeeds without a restart."""
+    node = _start(start_node, {**PCA_PARAMS, "radius": 1})
+    with LifecycleProbe() as probe:
+        assert not probe.change(Transition.TRANSITION_CONFIGURE)
+        assert probe.state() == "unconfigured"
+        (line,) = [line for line in node.log.splitlines() if "configure failed" in line]
+        assert "radius" in line and "INTEGER" in line, line
+        assert not probe.change(Transition.TRANSITION_CONFIGURE)  # still refused: the value was never set right
+        ok, why = probe.set_parameters({"radius": 0.05})
+        assert ok, why
+        assert probe.change(Transition.TRANSITION_CONFIGURE)
+        assert probe.state() == "inactive"
+        assert probe.change(Transition.TRANSITION_INACTIVE_SHUTDOWN)
+    assert node.proc.wait(WAIT_S) == 0, node.log[-3000:]
+    (configured,) = [line for line in node.log.splitlines() if "configured: method=pca" in line]
+    assert "radius=0.05 m, k=24" in configured, configured  # k, declared after radius, kept its start-up value
+    assert "Traceback" not in node.log

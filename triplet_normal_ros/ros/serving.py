@@ -16,7 +16,6 @@ import os
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
@@ -116,6 +115,7 @@ class ServingMixin:
         """The state both nodes have from construction on: nothing configured, nothing published yet."""
         self._active: tuple[NormalEstimator, NodeSettings] | None = None
         self._watching_parameters = False
+        self._rejected: dict[str, str] = {}  # parameter -> why rclpy rejected its start-up value, until it is set
         self._mailbox: Mailbox[PointCloud2] = Mailbox()
         self._stats = ProcessingStats()
         self._cancel = threading.Event()
@@ -143,28 +143,29 @@ class ServingMixin:
         return estimator, settings
 
     def _declare_parameters(self) -> NodeSettings:
-        """Declare every parameter not declared yet with its default and descriptor, then validate the values in
-        force. The on-set callback is added after the declarations, so a bad start-up value is reported here with
-        the others, and stays declared, so that it can be set right before the managed node's next configure."""
-        values: dict[str, Any] = {}
-        try:
-            for spec in SPECS:
-                declared = self.has_parameter(spec.name)
-                param = (
-                    self.get_parameter(spec.name)
-                    if declared
-                    else self.declare_parameter(spec.name, spec.default, _descriptor(spec))
-                )
-                values[spec.name] = param.value
-        except ParameterException as error:
-            raise ConfigError(_reason(error)) from None
+        """Declare every parameter not declared yet, each on its own, then validate the values in force. A start-up
+        value rclpy rejects (wrong type, out of range) is declared with its default instead and refused here until the
+        parameter is set right, so one bad value neither hides the others nor leaves a managed node that no
+        `ros2 param set` can fix. The on-set callback is added after the declarations."""
+        values = {spec.name: self._declared(spec).value for spec in SPECS}
         if not self._watching_parameters:
             self.add_on_set_parameters_callback(self._on_set_parameters)
             self._watching_parameters = True
-        reason = validate_all(values)
+        reason = "; ".join(self._rejected.values()) or validate_all(values)
         if reason:
             raise ConfigError(reason)
         return apply(NodeSettings(), values)
+
+    def _declared(self, spec: ParamSpec) -> Parameter:
+        """The parameter `spec` names, declared now if it is not yet; its default, with the reason kept in
+        `_rejected`, when rclpy rejects the start-up value."""
+        if self.has_parameter(spec.name):
+            return self.get_parameter(spec.name)
+        try:
+            return self.declare_parameter(spec.name, spec.default, _descriptor(spec))
+        except ParameterException as error:
+            self._rejected[spec.name] = _reason(error)
+            return self.declare_parameter(spec.name, spec.default, _descriptor(spec), ignore_override=True)
 
     def _build(self, settings: NodeSettings, error_type: type[Exception]) -> NormalEstimator:
         try:
@@ -190,6 +191,8 @@ class ServingMixin:
         reason = validate_all(values)
         if reason:
             return _failure(reason)
+        for name in values:  # set right now: the start-up value rclpy rejected no longer stands in the way
+            self._rejected.pop(name, None)
         if self._active is None:
             return SetParametersResult(successful=True)
         estimator, settings = self._active
