@@ -60,6 +60,7 @@ class ManagedNode(ServingMixin, LifecycleNode):
             result = super().on_activate(state)
             self._subscribe()
             self._start_stats()
+            self._visuals.start()
         except Exception as error:  # rclpy would swallow it silently and leave the publishers sending
             self._stop_answering()
             super().on_deactivate(state)
@@ -104,13 +105,16 @@ class ManagedNode(ServingMixin, LifecycleNode):
         return TransitionCallbackReturn.FAILURE
 
     def _stop_answering(self) -> None:
-        """Unsubscribe and stop the statistics timer (deactivate, shutdown)."""
+        """Unsubscribe, stop the statistics timer and the RViz outputs' drawing thread (deactivate, shutdown, a failed
+        activate, an error)."""
         if self._subscription is not None:
             self.destroy_subscription(self._subscription)
             self._subscription = None
         if self._stats_timer is not None:
             self.destroy_timer(self._stats_timer)
             self._stats_timer = None
+        if self._visuals is not None:
+            self._visuals.stop()
 
 
 def main(args: list[str] | None = None) -> NoReturn:

@@ -38,6 +38,7 @@ class TripletNormalNode(ServingMixin, Node):
         self._create_outputs(self.create_publisher)
         self._subscribe()
         self._start_stats()
+        self._visuals.start()
         if not serve_in_caller:
             self._start_worker()
         self.get_logger().info(f"ready: {self._ready_line()}")

@@ -310,7 +310,7 @@ class ServingMixin:
                 "cloud has no finite points; publishing NaN normals", throttle_duration_sec=THROTTLE_S
             )
         publisher.publish(answer.message)
-        self._visuals.publish(answer.message, settings)
+        self._visuals.publish(answer.message, settings)  # hands the answer to the drawing thread; nothing is built here
         self._stats.record((time.perf_counter() - start) * 1e3)
         self._note_plan(estimator)
 
@@ -345,6 +345,8 @@ class ServingMixin:
         """Cancel the estimate in flight, close the mailbox and join the worker; False if it did not finish in time."""
         self._cancel.set()
         self._mailbox.close()
+        if self._visuals is not None:  # before the node and its publishers are destroyed
+            self._visuals.stop()
         if self._worker is None:  # served by the caller, who has returned from `serve`
             return True
         self._worker.join(timeout)
