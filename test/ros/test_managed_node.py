@@ -173,18 +173,21 @@ def test_a_failed_activate_says_why_and_leaves_the_node_inactive_and_alive(start
     assert "Traceback" not in node.log
 
 
-def test_a_wrongly_typed_output_qos_override_fails_configure_with_its_reason(start_node) -> None:
-    """rclpy raises a ParameterException for it while configure makes the output: configure fails with the reason
-    and the node stays unconfigured and alive."""
-    bad = f"qos_overrides.{OUT}.publisher.depth:=deep"
+@pytest.mark.parametrize("topic", [OUT, "/normals_markers"])
+def test_a_wrongly_typed_output_qos_override_fails_every_configure_with_its_reason(start_node, topic: str) -> None:
+    """rclpy raises a ParameterException for it while configure makes the outputs (the first one made, or one made
+    after the output exists): configure fails with the reason and the node stays unconfigured and alive; and so does
+    the next configure, which must not find half the outputs made and serve without the rest."""
+    bad = f"qos_overrides.{topic}.publisher.depth:=deep"
     node = start_node(PCA_PARAMS, {"input": IN, "output": OUT}, extra_args=["-p", bad], executable=EXECUTABLE)
     assert node.wait_for_log("unconfigured: waiting", WAIT_S), node.log
     with LifecycleProbe() as probe:
-        assert not probe.change(Transition.TRANSITION_CONFIGURE)
-        assert probe.state() == "unconfigured"
+        for _ in range(2):
+            assert not probe.change(Transition.TRANSITION_CONFIGURE)
+            assert probe.state() == "unconfigured"
         assert node.proc.poll() is None, "the process died with its configure"
-        (line,) = [line for line in node.log.splitlines() if "configure failed" in line]
-        assert line.startswith("[ERROR]") and "deep" in line, line
+        lines = [line for line in node.log.splitlines() if "configure failed" in line]
+        assert len(lines) == 2 and all(line.startswith("[ERROR]") and "deep" in line for line in lines), lines
         assert probe.change(Transition.TRANSITION_UNCONFIGURED_SHUTDOWN)
     assert node.proc.wait(WAIT_S) == 0, node.log[-3000:]
     assert "Traceback" not in node.log

@@ -46,7 +46,7 @@ class ManagedNode(ServingMixin, LifecycleNode):
         try:
             active = self._configure()
             if self._publisher is None:
-                self._create_outputs(self.create_lifecycle_publisher)
+                self._create_outputs(self.create_lifecycle_publisher, self.destroy_lifecycle_publisher)
         except Exception as error:  # rclpy would swallow it silently: say why, and stay unconfigured
             return self._failed("configure", error)
         self._active = active

@@ -35,7 +35,7 @@ class TripletNormalNode(ServingMixin, Node):
         self.get_logger().info(f"running triplet_normal_ros from {package_location()}")
         self._init_serving()
         self._active = self._configure()
-        self._create_outputs(self.create_publisher)
+        self._create_outputs(self.create_publisher, self.destroy_publisher)
         self._subscribe()
         self._start_stats()
         self._visuals.start()

@@ -16,6 +16,7 @@ import os
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
@@ -223,18 +224,29 @@ class ServingMixin:
 
     # -- topics -----------------------------------------------------------------------------------------------------
 
-    def _create_outputs(self, create: Callable[..., Publisher]) -> None:
-        """The output and /diagnostics publishers, made by `create`: the node's ``create_publisher``, or a managed
-        node's ``create_lifecycle_publisher`` (which sends nothing while the node is inactive)."""
-        self._publisher = create(
-            PointCloud2,
-            "output",
-            QoSProfile(depth=OUTPUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE),
-            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-        )
-        self._diagnostics = create(DiagnosticArray, diagnostics.TOPIC, diagnostics.DEPTH)
+    def _create_outputs(self, create: Callable[..., Publisher], destroy: Callable[[Publisher], object]) -> None:
+        """The output, /diagnostics and RViz publishers, made by `create`: the node's ``create_publisher``, or a
+        managed node's ``create_lifecycle_publisher`` (which sends nothing while the node is inactive). All or
+        nothing: if one cannot be made (a QoS override rclpy rejects), those made are destroyed with `destroy` and
+        the node holds none, so the next configure makes them all again instead of serving with some missing."""
+        made: list[Publisher] = []
+
+        def recorded(*args: Any, **kwargs: Any) -> Publisher:
+            made.append(create(*args, **kwargs))
+            return made[-1]
+
+        qos = QoSProfile(depth=OUTPUT_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+        options = QoSOverridingOptions.with_default_policies()
+        try:
+            output = recorded(PointCloud2, "output", qos, qos_overriding_options=options)
+            diagnostics_publisher = recorded(DiagnosticArray, diagnostics.TOPIC, diagnostics.DEPTH)
+            visuals = NormalVisuals(self, recorded)  # normals_markers and normal_image, for RViz
+        except Exception:
+            for publisher in made:
+                destroy(publisher)
+            raise
+        self._publisher, self._diagnostics, self._visuals = output, diagnostics_publisher, visuals
         self._diagnostic_name = diagnostics.status_name(self.get_fully_qualified_name())
-        self._visuals = NormalVisuals(self, create)  # normals_markers and normal_image, for RViz
 
     def _subscribe(self) -> None:
         self._subscription = self.create_subscription(
