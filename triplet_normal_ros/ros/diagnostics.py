@@ -9,6 +9,8 @@ one-byte value.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
@@ -38,8 +40,11 @@ def status(health: Health, name: str, hardware_id: str) -> DiagnosticStatus:
     )
 
 
-def diagnostic_array(health: Health, name: str, hardware_id: str, stamp: Time) -> DiagnosticArray:
-    """The message for ``/diagnostics``: one status, stamped with the node's clock."""
-    array = DiagnosticArray(status=[status(health, name, hardware_id)])
+def diagnostic_array(
+    health: Health, name: str, hardware_id: str, stamp: Time, more: Sequence[DiagnosticStatus] = ()
+) -> DiagnosticArray:
+    """The message for ``/diagnostics``: the node's status and `more` of its tasks' (as one Updater sends all its
+    tasks' in one array), stamped with the node's clock."""
+    array = DiagnosticArray(status=[status(health, name, hardware_id), *more])
     array.header.stamp = stamp
     return array

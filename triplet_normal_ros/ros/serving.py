@@ -334,8 +334,9 @@ class ServingMixin:
             self.get_logger().warning(plan.note)
 
     def _report_stats(self) -> None:
-        """Close the statistics window: log its line and publish its health on /diagnostics. The timer runs only
-        while the node subscribes and publishes (a managed node: while active)."""
+        """Close the statistics window: log its line and publish its health on /diagnostics, with the RViz outputs'
+        status while one is on. The timer runs only while the node subscribes and publishes (a managed node: while
+        active)."""
         if self._active is None:
             return
         estimator, settings = self._active
@@ -345,7 +346,9 @@ class ServingMixin:
         topics = (self._subscription.topic_name, self._publisher.topic_name)
         health = assess(window, settings_values(settings, device, _k(estimator, settings), topics))
         stamp = self.get_clock().now().to_msg()
-        self._diagnostics.publish(diagnostics.diagnostic_array(health, self._diagnostic_name, device, stamp))
+        rviz = self._visuals.status(settings.visual_settings())  # the RViz outputs' own status, while one is on
+        more = [rviz] if rviz is not None else []
+        self._diagnostics.publish(diagnostics.diagnostic_array(health, self._diagnostic_name, device, stamp, more))
 
     # -- shutdown ---------------------------------------------------------------------------------------------------
 

@@ -14,8 +14,8 @@ Both carry the answer's header (frame and stamp). Each is built only while its s
 the serving loop, once it has published an answer, only leaves it in a latest-only :class:`Mailbox` for a thread of
 their own, which builds and publishes; a cloud still waiting there when a newer answer arrives is skipped, so RViz
 sees fewer clouds drawn, never a slower node. Whether anything was built shows on /diagnostics: a status of its own,
-``<node>: rviz outputs``, sent every ``stats_period`` while a switch is on, counts the clouds seen, the messages built
-and the clouds skipped, beside each output's subscribers.
+``<node>: rviz outputs``, sent with the node's own status every ``stats_period`` while a switch is on, counts the
+clouds seen, the messages built and the clouds skipped, beside each output's subscribers.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Point
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -86,19 +86,17 @@ class NormalVisuals:
 
     def __init__(self, node: Node, create: Callable[..., Publisher]) -> None:
         """Publishers made by `create` (the node's ``create_publisher``, or a managed node's
-        ``create_lifecycle_publisher``: silent while inactive); the status timer every ``stats_period``."""
+        ``create_lifecycle_publisher``: silent while inactive)."""
         self._node = node
         options = QoSOverridingOptions.with_default_policies()
         self._markers = create(MarkerArray, MARKERS_TOPIC, QOS, qos_overriding_options=options)
         self._image = create(Image, IMAGE_TOPIC, QOS, qos_overriding_options=options)
-        self._diagnostics = create(DiagnosticArray, diagnostics.TOPIC, diagnostics.DEPTH)
         self._status_name = diagnostics.status_name(node.get_fully_qualified_name(), TASK)
         self._lock = threading.Lock()
         self._counts = Counts()
         self._jobs: Mailbox[Job] = Mailbox()
         self._jobs.close()  # refuses answers until `start`
         self._thread: threading.Thread | None = None
-        self._timer = node.create_timer(node.get_parameter("stats_period").value, self._report)
 
     def start(self) -> None:
         """Start the drawing thread with an empty mailbox (after a `stop`, or for the first time)."""
@@ -181,16 +179,14 @@ class NormalVisuals:
         with self._lock:
             return self._counts
 
-    def _report(self) -> None:
-        """Every stats_period, while a switch is on: the counts and subscribers as a status on /diagnostics."""
-        markers_on, image_on = (self._node.get_parameter(n).value for n in ("normals_markers", "normal_image"))
-        if not (markers_on or image_on):
-            return
+    def status(self, wanted: VisualSettings) -> DiagnosticStatus | None:
+        """The outputs' status for the serving node's /diagnostics report, while a switch is on (None otherwise):
+        the counts and the subscribers."""
+        if not (wanted.markers or wanted.image):
+            return None
         subscribers = (self._markers.get_subscription_count(), self._image.get_subscription_count())
-        health = status_health(self.counts, (markers_on, image_on), subscribers)
-        array_msg = DiagnosticArray(status=[diagnostics.status(health, self._status_name, "")])
-        array_msg.header.stamp = self._node.get_clock().now().to_msg()
-        self._diagnostics.publish(array_msg)
+        health = status_health(self.counts, (wanted.markers, wanted.image), subscribers)
+        return diagnostics.status(health, self._status_name, "")
 
 
 def status_health(counts: Counts, switches: tuple[bool, bool], subscribers: tuple[int, int]) -> Health:
