@@ -45,7 +45,7 @@ def test_the_installed_node_runs_as_launched_in_a_namespace_on_sim_time_at_debug
         assert client.spin_until(sim_time.done, 30)
         assert [v.bool_value for v in sim_time.result().values] == [True]
         cloud = cropped(load_frame("table_scene_mug"), 200, 300, 20, 20).to_cloud(client.header())
-        answer = client.request(cloud, timeout=60)
+        answer = client.request_resending(cloud, timeout=60, every=5.0)  # the best-effort input may lose one
         assert answer is not None and answer.header == cloud.header
         assert "normal_x" in [f.name for f in answer.fields]
     code, _ = node.stop(signal.SIGINT, timeout=60)
