@@ -1,11 +1,7 @@
 """The managed (lifecycle) node across processes: the colcon-installed ``managed_node`` driven through every
 transition by the real lifecycle services (``/triplet_normal/change_state`` and ``get_state``, lifecycle_msgs) from
-an rclpy client in this process, which also publishes clouds and listens for the answers.
-
-"No answer" is shown without waiting for a silence: while the node is not active its input has no subscriber (a graph
-state this process waits for), and a cloud sent then is never answered, while the next one, sent once the node is
-active again, is; the node answers in the order clouds reach it, so the earlier answer, had there been one, would have
-come first.
+an rclpy client in this process, which also publishes clouds and listens for the answers. While the node is not
+active its input has no subscriber, a graph state this process waits for.
 """
 
 from __future__ import annotations
@@ -32,17 +28,12 @@ WAIT_S = STARTUP_S
 
 
 class LifecycleProbe(ProbeClient):
-    """A ProbeClient that also calls the node's lifecycle services and records the stamp of every answer."""
+    """A ProbeClient that also calls the node's lifecycle services."""
 
     def __init__(self) -> None:
         super().__init__(IN, OUT)
-        self.stamps: list[tuple[int, int]] = []
         self._change = self.node.create_client(ChangeState, f"/{NODE_NAME}/change_state")
         self._get = self.node.create_client(GetState, f"/{NODE_NAME}/get_state")
-
-    def _on_output(self, msg: PointCloud2) -> None:
-        self.stamps.append((msg.header.stamp.sec, msg.header.stamp.nanosec))
-        super()._on_output(msg)
 
     def _call(self, client, request):
         assert client.wait_for_service(WAIT_S), f"no {client.srv_name} service"
@@ -62,9 +53,6 @@ class LifecycleProbe(ProbeClient):
 
     def output_publishers(self) -> int:
         return self._subscription.get_publisher_count()
-
-    def answered(self, cloud: PointCloud2) -> bool:
-        return (cloud.header.stamp.sec, cloud.header.stamp.nanosec) in self.stamps
 
 
 def _cloud(probe: LifecycleProbe, frame: Frame) -> PointCloud2:
@@ -93,13 +81,11 @@ def test_every_transition_through_the_lifecycle_services(start_node) -> None:
     frame = load_frame("table_scene_mug")
     with LifecycleProbe() as probe:
         assert probe.state() == "unconfigured"
-        # configure: the estimator is loaded and the output exists, but nothing is subscribed, so nothing is answered.
+        # configure: the estimator is loaded and the output exists, but nothing is subscribed.
         assert probe.change(Transition.TRANSITION_CONFIGURE)
         assert probe.state() == "inactive"
         assert probe.spin_until(lambda: probe.output_publishers() > 0, WAIT_S), "configure made no output"
         assert probe.subscribed(False)
-        while_inactive = _cloud(probe, frame)
-        probe.send(while_inactive)
         # activate: subscribed, and a cloud is answered with normals.
         assert probe.change(Transition.TRANSITION_ACTIVATE)
         assert probe.state() == "active"
@@ -109,8 +95,6 @@ def test_every_transition_through_the_lifecycle_services(start_node) -> None:
         assert probe.change(Transition.TRANSITION_DEACTIVATE)
         assert probe.state() == "inactive"
         assert probe.subscribed(False)
-        while_deactivated = _cloud(probe, frame)
-        probe.send(while_deactivated)
         assert probe.change(Transition.TRANSITION_ACTIVATE)
         assert _has_normals(_answer(probe, frame)), node.log[-3000:]
         # cleanup: back to unconfigured; configure again works.
@@ -121,7 +105,6 @@ def test_every_transition_through_the_lifecycle_services(start_node) -> None:
         assert probe.change(Transition.TRANSITION_ACTIVATE)
         assert probe.state() == "active"
         assert _has_normals(_answer(probe, frame)), node.log[-3000:]
-        assert not probe.answered(while_inactive) and not probe.answered(while_deactivated)
         # shutdown: the transition is answered, then the process exits 0.
         assert probe.change(Transition.TRANSITION_ACTIVE_SHUTDOWN)
     code = node.proc.wait(WAIT_S)
