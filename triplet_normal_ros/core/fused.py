@@ -42,6 +42,7 @@ from .windows import (
 _TINY = np.finfo(np.float64).tiny
 #: The `slope` argument of `_pixels` that sizes windows from the range alone.
 _NO_SLOPE = np.zeros((0, 3))
+_NO_CHANGE = np.zeros(0, dtype=np.bool_)
 #: (up, down, left, right) of the four half windows, then the four quarter windows.
 _SIDES = np.array(ONE_SIDED, dtype=np.int64)
 
@@ -82,6 +83,7 @@ class CompiledImage:
             self.points.numpy(), self.fit, self.pitch_row.numpy(), self.pitch_col.numpy(), self._radius,
             normal.numpy(),
         )  # fmt: skip
+        self.slope_fit = out
         t = {name: torch.from_numpy(out[name]) for name in ("normal", "eigvals", "count", "valid", "mean", "cov")}
         box = tuple(torch.from_numpy(out["box"][i]) for i in range(4))
         reach = self._radius if not self._scaled else torch.from_numpy(out["reach"])
@@ -125,7 +127,8 @@ def window_pca(
     n = height * width
     fit = _empty_fit(n)
     _bands(
-        _pixels, height, table, points, ranges, reach, rows, cols, col_walls, row_walls, float(radius), _NO_SLOPE,
+        _pixels, height, table, points, ranges, reach, rows, cols, col_walls, row_walls, float(radius),
+        _NO_SLOPE, _NO_CHANGE,
         *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
         pieces=4,
     )  # fmt: skip
@@ -147,15 +150,19 @@ def window_pca_on_slope(
     points = np.ascontiguousarray(points, dtype=np.float64)
     height, width = points.shape[:2]
     n = height * width
-    fit = _empty_fit(n)
+    fit, changed = _empty_fit(n), np.zeros(n, dtype=np.bool_)
     _bands(
         _pixels, height, out["table"], points, out["ranges"], out["reach_grid"],
         np.ascontiguousarray(pitch_row, dtype=np.float64), np.ascontiguousarray(pitch_col, dtype=np.float64),
-        out["col_walls"], out["row_walls"], float(radius), np.ascontiguousarray(slope, dtype=np.float64),
+        out["col_walls"], out["row_walls"], float(radius), np.ascontiguousarray(slope, dtype=np.float64), changed,
         *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
         pieces=4,
     )  # fmt: skip
-    fit["mean"] += out["offset"]
+    fit["mean"][changed] += out["offset"]
+    kept = ~changed
+    for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "reach"):
+        fit[name][kept] = out[name][kept]
+    fit["box"][:, kept] = out["box"][:, kept]
     return fit
 
 
@@ -413,12 +420,13 @@ def _eigen(a00, a01, a02, a11, a12, a22, eigvals, normal):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _pixels(
-    table, points, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, radius, slope,
+    table, points, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, radius, slope, changed,
     normal, eigvals, count, valid, mean, cov, box, flat_reach, lo, hi,
 ):  # fmt: skip
     """Each pixel's window, its moments, PCA and validity (`MomentImage.pca` and `windows._window_pca`); with a
     `slope` (H·W, 3) rather than an empty one, each axis' half-width is first divided by the stretch of that plane along
-    it (`MomentImage.pca_on_slope`)."""
+    it (`MomentImage.pca_on_slope`), and only the pixels whose window that changes are fitted and marked in `changed`:
+    the others' windows, and so their fits, are the first pass's."""
     width = ranges.shape[1]
     for r in range(lo, hi):
         for c in range(width):
@@ -426,11 +434,18 @@ def _pixels(
             half_row, half_col = _halves(ranges, reach, pitch_row, pitch_col, r, c)
             if slope.shape[0]:
                 sx, sy, sz = slope[i, 0], slope[i, 1], slope[i, 2]
-                half_row = _on_slope(half_row, _stretch(points, ranges, r, c, 1, 0, sx, sy, sz))
-                half_col = _on_slope(half_col, _stretch(points, ranges, r, c, 0, 1, sx, sy, sz))
+                if sx == 0.0 and sy == 0.0 and sz == 0.0:
+                    continue  # no plane: the first window stands (`changed` stays False)
+                rows = _on_slope(half_row, _stretch(points, ranges, r, c, 1, 0, sx, sy, sz))
+                cols = _on_slope(half_col, _stretch(points, ranges, r, c, 0, 1, sx, sy, sz))
+                if rows == half_row and cols == half_col:
+                    continue
+                changed[i] = True
+                half_row, half_col = rows, cols
             flat_reach[i] = radius if np.isnan(reach[r, c]) else reach[r, c]
-            outputs = (normal, eigvals, count, valid, mean, cov, box)
-            _fit_pixel(table, col_walls, row_walls, r, c, half_row, half_col, *outputs)
+            _fit_pixel(
+                table, col_walls, row_walls, r, c, half_row, half_col, normal, eigvals, count, valid, mean, cov, box
+            )
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -456,24 +471,28 @@ def _ray(points, ranges, r, c, k):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _stretch(points, ranges, r, c, dr, dc, nx, ny, nz):
-    """`windows._stretch` of one pixel along the axis stepping (dr, dc), with `windows._ray_turn`'s neighbours."""
+def _turn(points, ranges, r, c, dr, dc, k):
+    """Component k of `windows._ray_turn` at (r, c) along the axis stepping (dr, dc)."""
     height, width = ranges.shape
-    ahead_ok = r + dr < height and c + dc < width
-    behind_ok = r - dr >= 0 and c - dc >= 0
-    turn = np.empty(3)
-    for k in range(3):
-        own = _ray(points, ranges, r, c, k)
-        ahead = _ray(points, ranges, r + dr, c + dc, k) if ahead_ok else np.nan
-        behind = _ray(points, ranges, r - dr, c - dc, k) if behind_ok else np.nan
-        ahead = ahead if np.isfinite(ahead) else own
-        behind = behind if np.isfinite(behind) else own
-        step = ahead - behind
-        turn[k] = 0.0 if np.isnan(step) else step
+    own = _ray(points, ranges, r, c, k)
+    ahead = _ray(points, ranges, r + dr, c + dc, k) if r + dr < height and c + dc < width else np.nan
+    behind = _ray(points, ranges, r - dr, c - dc, k) if r - dr >= 0 and c - dc >= 0 else np.nan
+    step = (ahead if np.isfinite(ahead) else own) - (behind if np.isfinite(behind) else own)
+    return 0.0 if np.isnan(step) else step
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _stretch(points, ranges, r, c, dr, dc, nx, ny, nz):
+    """`windows._stretch` of one pixel along the axis stepping (dr, dc)."""
+    ux, uy, uz = (
+        _turn(points, ranges, r, c, dr, dc, 0),
+        _turn(points, ranges, r, c, dr, dc, 1),
+        _turn(points, ranges, r, c, dr, dc, 2),
+    )
     dx, dy, dz = _ray(points, ranges, r, c, 0), _ray(points, ranges, r, c, 1), _ray(points, ranges, r, c, 2)
     dx, dy, dz = (0.0 if np.isnan(dx) else dx), (0.0 if np.isnan(dy) else dy), (0.0 if np.isnan(dz) else dz)
-    along_ray = turn[0] * dx + turn[1] * dy + turn[2] * dz
-    tx, ty, tz = turn[0] - dx * along_ray, turn[1] - dy * along_ray, turn[2] - dz * along_ray
+    along_ray = ux * dx + uy * dy + uz * dz
+    tx, ty, tz = ux - dx * along_ray, uy - dy * along_ray, uz - dz * along_ray
     length = math.sqrt(tx * tx + ty * ty + tz * tz)
     if not length > 0:
         return 1.0

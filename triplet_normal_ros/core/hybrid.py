@@ -137,7 +137,17 @@ def survey_on_slope(image: MomentImage, fit: WindowPCA, survey: torch.Tensor) ->
     """
     first = torch.where(fit.valid.unsqueeze(-1), survey, 0.0)
     sloped = image.pca_on_slope(first)
-    return torch.where(sloped.valid.unsqueeze(-1), ray_noise_normal(sloped), survey)
+    return torch.where(sloped.valid.unsqueeze(-1), _ray_noise_normal(image, sloped), survey)
+
+
+def _ray_noise_normal(image: MomentImage, fit: WindowPCA) -> torch.Tensor:
+    """`ray_noise_normal` of windows `image` fitted: compiled where they were (the same values to roundoff)."""
+    if not image.compiled:
+        return ray_noise_normal(fit)
+    from . import fused
+
+    normal, _, _ = fused.survey(image.table.numpy(), image.offset.numpy(), image.slope_fit)
+    return torch.from_numpy(normal)
 
 
 class Structure(NamedTuple):
