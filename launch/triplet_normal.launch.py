@@ -12,7 +12,8 @@ parameter listed), ``depth_camera`` or ``lidar`` (README, "Sensor presets").
 
 Which parameters win: the preset's file is always loaded; ``params_file`` (default: empty, none) is a ROS 2 parameter
 file of your own, loaded after it, so each key your file sets overrides the preset's and every other key keeps the
-preset's value; ``use_sim_time`` (default false) comes last and so wins over both files. ``log_level`` (default info)
+preset's value; ``use_sim_time``, when given (default: not given), comes last and so wins over both files, and when
+not given the files' own ``use_sim_time`` (if any) stands. ``log_level`` (default info)
 is the node's ``--log-level``. The node also publishes its health on ``/diagnostics`` (docs/NODE.md).
 """
 
@@ -58,9 +59,10 @@ def generate_launch_description() -> LaunchDescription:
             ),
             DeclareLaunchArgument(
                 "use_sim_time",
-                default_value="false",
-                choices=["true", "false"],
-                description="follow /clock (a bag played with --clock, a simulator); overrides both files",
+                default_value="",
+                choices=["", "true", "false"],
+                description="true: follow /clock (a bag played with --clock, a simulator); given, it overrides both "
+                "files; not given, the files' own use_sim_time (or false) stands",
             ),
             DeclareLaunchArgument(
                 "log_level",
@@ -74,20 +76,23 @@ def generate_launch_description() -> LaunchDescription:
 
 def _node(context: LaunchContext) -> list[Node]:
     """The package's ``node`` executable: the preset's file, then the user's when one is given (ROS 2 applies
-    parameter files in order, a later file's keys over an earlier one's), then ``use_sim_time``. Made at launch
-    because whether there is a second file depends on an argument's value, and an empty path would not load."""
+    parameter files in order, a later file's keys over an earlier one's), then ``use_sim_time`` when it is given. Made
+    at launch because whether there is a second file, or a sim-time override, depends on the arguments' values, and an
+    empty path would not load."""
     config = os.path.join(get_package_share_directory(PACKAGE), "config")
     files = [os.path.join(config, LaunchConfiguration("preset").perform(context) + ".yaml")]
     own = LaunchConfiguration("params_file").perform(context)
     if own:
         files.append(own)
+    sim_time = LaunchConfiguration("use_sim_time").perform(context)
+    overrides = [{"use_sim_time": sim_time == "true"}] if sim_time else []
     return [
         Node(
             package=PACKAGE,
             executable=EXECUTABLE,
             name=NODE_NAME,
             namespace=LaunchConfiguration("namespace"),
-            parameters=[*files, {"use_sim_time": LaunchConfiguration("use_sim_time")}],
+            parameters=[*files, *overrides],
             remappings=[("input", LaunchConfiguration("input")), ("output", LaunchConfiguration("output"))],
             ros_arguments=["--log-level", LaunchConfiguration("log_level")],
             output="screen",

@@ -253,7 +253,10 @@ def launched(monkeypatch: pytest.MonkeyPatch, arguments: Mapping[str, str] | Non
     (node,) = nodes
     kwargs = node.kwargs
     parameters = tuple(
-        {name: yaml.safe_load(_resolve(v, values)) for name, v in item.items()}
+        {
+            name: v if isinstance(v, bool | int | float) else yaml.safe_load(_resolve(v, values))
+            for name, v in item.items()
+        }
         if isinstance(item, dict)
         else _resolve(item, values)
         for item in kwargs.get("parameters", [])
@@ -286,7 +289,7 @@ def test_every_argument_has_a_description_and_reaches_the_node(tmp_path: Path, m
     assert default.node == (PACKAGE, "node", NODE_NAME)
     assert default.remappings == tuple((topic, topic) for topic in TOPICS)
     assert default.namespace == ""
-    assert default.parameters == (str(config / "params.yaml"), RCLPY_PARAMETERS)
+    assert default.parameters == (str(config / "params.yaml"),)  # use_sim_time not given: the files' own stands
     assert default.ros_arguments == ("--log-level", "info")
     # Each argument, given a value other than its default, changes what the node gets: none is declared for nothing.
     for name, argument in declared.items():
@@ -300,15 +303,17 @@ def test_every_argument_has_a_description_and_reaches_the_node(tmp_path: Path, m
     robot = launched(monkeypatch, {"namespace": "robot1", "use_sim_time": "true", "log_level": "debug"})
     assert robot.namespace == "robot1" and robot.remappings == default.remappings  # relative: they follow it
     assert robot.parameters == (str(config / "params.yaml"), {"use_sim_time": True})  # a bool, as rclpy declares it
+    # given false, it still comes last: it overrides a file's use_sim_time: true
+    assert launched(monkeypatch, {"use_sim_time": "false"}).parameters[-1] == {"use_sim_time": False}
     assert robot.ros_arguments == ("--log-level", "debug")
-    # A {name: value} map after the files (so it overrides them) names a node parameter or one of rclpy's, and left
-    # at its default it is that parameter's default.
-    defaults = {**{spec.name: spec.default for spec in SPECS}, **RCLPY_PARAMETERS}
-    maps = [item for item in default.parameters if isinstance(item, dict)]
-    assert default.parameters[-len(maps) :] == tuple(maps), f"a parameter file after a map: {default.parameters}"
-    for name, setting in (pair for mapping in maps for pair in mapping.items()):
-        assert name in defaults, f"launch parameter {name!r} is neither the node's nor rclpy's ({sorted(defaults)})"
-        assert setting == defaults[name], f"{name}: launch default {setting!r}, the node's {defaults[name]!r}"
+    # A {name: value} map comes after the files (so it overrides them) and names a node parameter or one of rclpy's;
+    # with no arguments there is none, so nothing overrides a parameter file.
+    known = {spec.name for spec in SPECS} | set(RCLPY_PARAMETERS)
+    maps = [item for item in robot.parameters if isinstance(item, dict)]
+    assert maps and robot.parameters[-len(maps) :] == tuple(maps), f"a parameter file after a map: {robot.parameters}"
+    for name in (name for mapping in maps for name in mapping):
+        assert name in known, f"launch parameter {name!r} is neither the node's nor rclpy's ({sorted(known)})"
+    assert not [item for item in default.parameters if isinstance(item, dict)]
 
 
 def test_a_params_file_comes_after_the_preset_so_its_keys_win_one_by_one(
@@ -322,11 +327,11 @@ def test_a_params_file_comes_after_the_preset_so_its_keys_win_one_by_one(
     preset = prefix / "share" / PACKAGE / "config" / "lidar.yaml"
     own = own_params(tmp_path / "mine.yaml")
     given = launched(monkeypatch, {PARAMS_FILE: str(own), PRESET: "lidar"})
-    assert given.parameters == (str(preset), str(own), RCLPY_PARAMETERS)
+    assert given.parameters == (str(preset), str(own))
     merged = applied(given.parameters)
     assert merged["radius"] == OWN["radius"] != applied([str(preset)])["radius"]  # the user's key wins ...
     assert merged["range_scale"] == applied([str(preset)])["range_scale"]  # ... the preset's others stay
-    assert launched(monkeypatch, {PRESET: "lidar"}).parameters == (str(preset), RCLPY_PARAMETERS)  # empty: no file
+    assert launched(monkeypatch, {PRESET: "lidar"}).parameters == (str(preset),)  # empty: no file
 
 
 #: The user's parameter file of the precedence tests: pca on the CPU (quick to answer) and its own radius, nothing
@@ -392,4 +397,3 @@ def test_colcon_installs_it_and_its_presets_resolve_to_the_installed_files(
 
     monkeypatch.setenv("AMENT_PREFIX_PATH", str(install_prefix))  # what sourcing install/setup.bash sets
     _check_presets(monkeypatch, install_prefix / "share" / PACKAGE)
-
