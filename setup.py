@@ -11,7 +11,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={PACKAGE: ["checkpoints/*.safetensors", "sample_data/*.npz", "sample_data/*.md"]},
+    package_data={PACKAGE: ["checkpoints/*.safetensors", "sample_data/*.npz", "sample_data/*.md", "evaluation/*.cpp"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

@@ -1,20 +1,21 @@
 """bench's outside anchors without the outside libraries: the skip line, the camera they use, and the timing and
 scoring plumbing with a package method standing in for an anchor (any `(points, shape, radius) -> normals` is one).
 
-Open3D and OpenCV are no dependency of the package and are not installed for the tests; the last test compares the
-real Open3D with the package where it happens to be importable.
+Open3D, OpenCV and PCL are no dependency of the package and are not installed for the tests; PCL's absence is
+simulated by looking for its headers in an empty folder.
 """
 
 from __future__ import annotations
 
 import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from triplet_normal_ros.core.conventions import bbox_diagonal
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.evaluation import anchors
+from triplet_normal_ros.evaluation import anchors, pcl
 from triplet_normal_ros.evaluation.bench import NOISE_REL, Cloud, anchors_markdown, bench_one, torus_cloud, torus_sample
 from triplet_normal_ros.evaluation.metrics import WORST_ANGLE, msae
 from triplet_normal_ros.simulation.depth_camera import KINECT_CX, KINECT_CY, KINECT_FX, KINECT_FY, camera_rays
@@ -62,7 +63,50 @@ def test_each_library_either_loads_its_anchors_or_says_how_to_install_it() -> No
         assert anchors.BASE_ANCHOR in names
     if importlib.util.find_spec("cv2") is None:
         assert line is not None and "OpenCV RgbdNormals (pip install opencv-contrib-python-headless)" in line
+    if pcl.pcl_include() is None:
+        assert line is not None and "PCL (apt-get install libpcl-dev)" in line
     assert line is None or "\n" not in line
+
+
+def test_without_pcl_headers_the_pcl_library_says_how_to_install_them(tmp_path: Path) -> None:
+    with pytest.raises(ImportError, match="apt-get install libpcl-dev"):
+        pcl.pcl_anchors(include_roots=[tmp_path])
+    library = next(lib for lib in anchors.LIBRARIES if lib.name == "PCL")
+    headless = anchors.Library(library.name, lambda: pcl.pcl_anchors([tmp_path]), library.install, library.hints)
+    found, skipped = anchors.available_anchors([headless])
+    assert found == [] and anchors.skip_line(skipped) == (
+        "bench: anchors skipped, not importable: PCL (apt-get install libpcl-dev)"
+    )
+
+
+def test_the_newest_pcl_headers_are_found_by_version_not_by_name(tmp_path: Path) -> None:
+    for version in ("1.9", "1.13", "1.12"):
+        header = tmp_path / f"pcl-{version}" / "pcl" / "features" / "integral_image_normal.h"
+        header.parent.mkdir(parents=True)
+        header.touch()
+    (tmp_path / "pcl-1.14" / "pcl").mkdir(parents=True)  # no integral-image estimator: not a usable PCL
+    assert pcl.pcl_include([tmp_path / "absent", tmp_path]) == tmp_path / "pcl-1.13"
+
+
+def test_an_anchor_that_times_itself_is_timed_by_the_seconds_it_reports() -> None:
+    """A tool in another process reports its own runs, so its start and file IO are not counted: `measure` calls it
+    once and takes the median of its runs, however long the call took."""
+    points, truth = torus_sample(2000, seed=6)
+    calls = []
+
+    def self_timed(p: np.ndarray, shape, radius: float) -> tuple[np.ndarray, list[float]]:
+        calls.append(radius)
+        return pca_anchor(p, shape, radius), [0.5, 0.1, 0.3]
+
+    query = np.arange(0, 2000, 7)
+    row = anchors.measure(anchors.Anchor("tool", self_timed, times_itself=True), "t", points, None, 0.2, truth, query)
+    assert len(calls) == 1
+    assert row.seconds == 0.3 and row.runs == [0.5, 0.1, 0.3]
+    assert row.msae == pytest.approx(msae(pca_anchor(points, None, 0.2)[query], truth[query]), rel=1e-12)
+    with pytest.raises(ValueError, match="no timed run"):
+        anchors.measure(
+            anchors.Anchor("mute", lambda p, s, r: (truth, []), times_itself=True), "t", points, None, 0.2, truth, query
+        )
 
 
 @pytest.mark.parametrize("size", [(640, 480), (320, 240), (64, 48)])

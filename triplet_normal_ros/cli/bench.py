@@ -8,8 +8,9 @@ from . import args as checks
 
 DESCRIPTION = """Points/s per stage of every method on a simulated 640x480 depth frame and a noisy torus, side by
 side in one run, with the neighbour searches, plain matmul GFLOP/s and PointCloud2 conversion. When Open3D or OpenCV's
-RgbdNormals imports (neither is a dependency), also times and scores them on the same clouds as anchors. Prints the
-tables; with --out, also writes them into that markdown file. See docs/RESULTS.md."""
+RgbdNormals imports, or PCL's headers are installed (none is a dependency; PCL's tool compiles on the first run), also
+times and scores them on the same clouds as anchors. Prints the tables; with --out, also writes them into that
+markdown file. See docs/RESULTS.md."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -22,7 +23,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", type=Path, metavar="MD", help="results markdown to update (e.g. docs/RESULTS.md)")
     p.add_argument(
-        "--no-anchors", action="store_true", help="do not time Open3D / OpenCV even when they import (default: do)"
+        "--no-anchors",
+        action="store_true",
+        help="do not time Open3D / OpenCV / PCL even when they are there (default: do)",
     )
 
 

@@ -1,19 +1,24 @@
-"""Outside anchors for `bench`: Open3D's and OpenCV's normal estimators, timed and scored on bench's own clouds.
+"""Outside anchors for `bench`: Open3D's, OpenCV's and PCL's normal estimators, timed and scored on bench's own
+clouds.
 
-Neither library is a dependency of the package. When one imports, `bench` times it on the same clouds as the
-package's methods and scores it with the same metric (`metrics.msae`, a NaN counting as 90°) at the same query points,
-so the ratios between them come from one run on one machine. When one does not, `bench` says so in one line with the
-command that installs it, and its tables are what they were without anchors.
+No such library is a dependency of the package. When one imports (PCL: when its headers are installed), `bench` times
+it on the same clouds as the package's methods and scores it with the same metric (`metrics.msae`, a NaN counting as
+90°) at the same query points, so the ratios between them come from one run on one machine. When one does not, `bench`
+says so in one line with the command that installs it, and its tables are what they were without anchors.
 
 * **Open3D KNN30**: `estimate_normals(KDTreeSearchParamHybrid(radius, max_nn=30))`, Open3D's usual setting; the
   package's `pca, k = 30` is the same estimate.
 * **Open3D radius**: `estimate_normals(KDTreeSearchParamRadius(radius))`, every point of the ball.
 * **OpenCV FALS 7x7** (organized clouds only): `RgbdNormals` with the FALS method of Badino et al. over its largest
   window (7 x 7 pixels), with the pinhole of the simulated depth camera (`simulation.depth_camera.camera_rays`).
+* **PCL integral image** (AVERAGE_3D_GRADIENT, COVARIANCE_MATRIX; organized clouds only) and **PCL
+  NormalEstimationOMP KNN30**, through a C++ tool compiled on first use (`evaluation.pcl`).
 
 An anchor is any callable `(points, shape, radius) -> normals`: points (N, 3) float64 with NaN rows where there is no
-return, shape (height, width) of an organized cloud or None, normals (N, 3) with NaN rows where it gives none. A
-package method can stand in for one (the tests do), so the timing and scoring here are checked without either library.
+return, shape (height, width) of an organized cloud or None, normals (N, 3) with NaN rows where it gives none. One that
+runs in another process returns `(normals, seconds of each timed run)` instead and says so (`Anchor.times_itself`), so
+its start and file IO are not counted. A package method can stand in for one (the tests do), so the timing and
+scoring here are checked without any of the libraries.
 """
 
 from __future__ import annotations
@@ -38,6 +43,8 @@ OPEN3D_MAX_NN = 30
 REPEATS = 3
 
 Estimate = Callable[[np.ndarray, "tuple[int, int] | None", float], np.ndarray]
+#: An anchor that times itself: (normals, seconds of each of its timed runs after its own warm-up).
+TimedEstimate = Callable[[np.ndarray, "tuple[int, int] | None", float], "tuple[np.ndarray, list[float]]"]
 
 
 @dataclass(frozen=True)
@@ -45,11 +52,13 @@ class Anchor:
     """One outside estimator: its table name, the callable, and whether it needs an organized cloud."""
 
     name: str
-    estimate: Estimate
+    estimate: Estimate | TimedEstimate
     organized_only: bool = False
     version: str = ""
     #: What it calls, for the table's caption.
     about: str = ""
+    #: `estimate` is a TimedEstimate: the seconds it reports are its time, not the wall time of calling it.
+    times_itself: bool = False
 
 
 @dataclass(frozen=True)
@@ -201,6 +210,16 @@ def opencv_anchors() -> list[Anchor]:
                    version=f"OpenCV {cv2.__version__}", about=about)]
 
 
+# -- PCL ------------------------------------------------------------------------------------------------------------
+
+
+def pcl_anchors() -> list[Anchor]:
+    """PCL's integral-image and OMP normals (`evaluation.pcl`, imported on the call since it imports this module)."""
+    from .pcl import pcl_anchors as load
+
+    return load()
+
+
 LIBRARIES: tuple[Library, ...] = (
     Library(
         "Open3D",
@@ -210,6 +229,13 @@ LIBRARIES: tuple[Library, ...] = (
                     "LD_LIBRARY_PATH)"),),
     ),
     Library("OpenCV RgbdNormals", opencv_anchors, "pip install opencv-contrib-python-headless"),
+    Library(
+        "PCL",
+        pcl_anchors,
+        "apt-get install libpcl-dev",
+        (("not on PATH", "apt-get install g++ pkg-config"),
+         ("did not compile", "its tool did not compile: g++'s log is in ~/.cache/triplet_normal_ros")),
+    ),
 )
 
 
@@ -245,20 +271,31 @@ def measure(
     query: np.ndarray,
     repeats: int = REPEATS,
 ) -> AnchorRow:
-    """Time `anchor` on the whole cloud (one warm-up call, then the median of `repeats`) and score its normals at
-    `query` against `truth` (N, 3) with `metrics.msae`, where a missing normal counts as 90°."""
+    """Time `anchor` on the whole cloud (one warm-up call, then the median of `repeats`; an anchor that times itself
+    is called once and its own runs are taken) and score its normals at `query` against `truth` (N, 3) with
+    `metrics.msae`, where a missing normal counts as 90°."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    normals = np.asarray(anchor.estimate(points, shape, radius), dtype=np.float64)
+    result = anchor.estimate(points, shape, radius)
+    normals, runs = result if anchor.times_itself else (result, None)
+    normals = np.asarray(normals, dtype=np.float64)
     if normals.shape != points.shape:
         raise ValueError(f"anchor {anchor.name} returned normals of shape {normals.shape} for {points.shape} points")
+    if runs is None:
+        runs = _wall_times(anchor, points, shape, radius, repeats)
+    if not runs:
+        raise ValueError(f"anchor {anchor.name} reported no timed run")
+    picked = normals[query]
+    return AnchorRow(cloud, anchor.name, statistics.median(runs), msae(picked, truth[query]),
+                     invalid_count(picked), len(query), list(runs))
+
+
+def _wall_times(anchor: Anchor, points: np.ndarray, shape, radius: float, repeats: int) -> list[float]:
     runs = []
     for _ in range(repeats):
         start = time.perf_counter()
         anchor.estimate(points, shape, radius)
         runs.append(time.perf_counter() - start)
-    picked = normals[query]
-    return AnchorRow(cloud, anchor.name, statistics.median(runs), msae(picked, truth[query]),
-                     invalid_count(picked), len(query), runs)
+    return runs
 
 
 def applies(anchor: Anchor, shape: tuple[int, int] | None) -> bool:

@@ -7,9 +7,10 @@ to the whole cloud. Machines are noisy, so the table also gives each method's ti
 (Open3D's usual cap) measured in the same run, next to the machine's plain matmul GFLOP/s and the network's share
 of it. The PointCloud2 conversion rows are the per-frame overhead the node adds.
 
-When Open3D or OpenCV's `RgbdNormals` imports (neither is a dependency), their estimators run on the same clouds as
-anchors (`evaluation.anchors`): a second table gives every method's and every anchor's whole-cloud seconds, its ratio
-to Open3D's KNN-30 estimate and its MSAE at the same query points against the clouds' exact normals.
+When Open3D or OpenCV's `RgbdNormals` imports, or PCL's headers are installed (none is a dependency), their
+estimators run on the same clouds as anchors (`evaluation.anchors`): a second table gives every method's and every
+anchor's whole-cloud seconds, its ratio to Open3D's KNN-30 estimate and its MSAE at the same query points against the
+clouds' exact normals.
 """
 
 from __future__ import annotations
