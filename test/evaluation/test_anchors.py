@@ -70,9 +70,9 @@ def test_each_library_either_loads_its_anchors_or_says_how_to_install_it() -> No
 
 def test_without_pcl_headers_the_pcl_library_says_how_to_install_them(tmp_path: Path) -> None:
     with pytest.raises(ImportError, match="apt-get install libpcl-dev"):
-        pcl.pcl_anchors(include_roots=[tmp_path])
+        anchors.pcl_anchors(include_roots=[tmp_path])
     library = next(lib for lib in anchors.LIBRARIES if lib.name == "PCL")
-    headless = anchors.Library(library.name, lambda: pcl.pcl_anchors([tmp_path]), library.install, library.hints)
+    headless = anchors.Library(library.name, lambda: anchors.pcl_anchors([tmp_path]), library.install, library.hints)
     found, skipped = anchors.available_anchors([headless])
     assert found == [] and anchors.skip_line(skipped) == (
         "bench: anchors skipped, not importable: PCL (apt-get install libpcl-dev)"

@@ -30,6 +30,7 @@ import statistics
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -213,11 +214,14 @@ def opencv_anchors() -> list[Anchor]:
 # -- PCL ------------------------------------------------------------------------------------------------------------
 
 
-def pcl_anchors() -> list[Anchor]:
-    """PCL's integral-image and OMP normals (`evaluation.pcl`, imported on the call since it imports this module)."""
-    from .pcl import pcl_anchors as load
+def pcl_anchors(include_roots: Sequence[Path] | None = None) -> list[Anchor]:
+    """PCL's integral-image and OMP normals from `evaluation.pcl`'s tool, which times itself; ImportError naming
+    `apt-get install libpcl-dev` when PCL's headers are not under `include_roots` (default: the system's)."""
+    from . import pcl
 
-    return load()
+    roots = pcl.INCLUDE_ROOTS if include_roots is None else include_roots
+    found = pcl.pcl_estimators(REPEATS, roots)
+    return [Anchor(*estimator, times_itself=True) for estimator in found]
 
 
 LIBRARIES: tuple[Library, ...] = (

@@ -14,7 +14,7 @@ package, its tests or CI.
   radius or a k, not both, so unlike Open3D's KNN30 no ball caps it.
 
 A process's start and its file IO are no part of an estimator's cost, so the tool times each estimator itself, one
-warm-up and `anchors.REPEATS` runs around the computation alone, and the anchors report those seconds
+warm-up and `repeats` runs (`anchors.REPEATS`) around the computation alone, and the anchors report those seconds
 (`Anchor.times_itself`). One run of the tool gives every estimator on a cloud, so the anchors of one cloud share it.
 """
 
@@ -27,12 +27,10 @@ import shutil
 import subprocess
 import sys
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
-
-from .anchors import REPEATS, Anchor
 
 SOURCE = Path(__file__).with_name("pcl_normals.cpp")
 #: Where PCL's headers are looked for: Debian's and Ubuntu's libpcl-dev, then a PCL built from source.
@@ -100,7 +98,7 @@ def build_tool(include: Path, cache: Path) -> Path:
 
 
 def run_tool(
-    tool: Path, points: np.ndarray, shape: tuple[int, int] | None, threads: int, repeats: int = REPEATS
+    tool: Path, points: np.ndarray, shape: tuple[int, int] | None, threads: int, repeats: int
 ) -> dict[str, tuple[np.ndarray, list[float]]]:
     """Every estimator of the tool on one cloud: method -> (normals (N, 3) float64 with NaN rows, seconds of each
     timed run). An unorganized cloud (`shape` None) goes as one row, where only the KD-tree estimator runs."""
@@ -129,35 +127,39 @@ def tool_version(tool: Path) -> str:
 class ToolRuns:
     """The tool's run on the last cloud asked for, which every anchor of that cloud reads, so one run serves all."""
 
-    def __init__(self, tool: Path, threads: int) -> None:
-        self.tool, self.threads = tool, threads
+    def __init__(self, tool: Path, threads: int, repeats: int) -> None:
+        self.tool, self.threads, self.repeats = tool, threads, repeats
         self.key: tuple | None = None
         self.result: dict[str, tuple[np.ndarray, list[float]]] = {}
 
     def get(self, points: np.ndarray, shape: tuple[int, int] | None, method: str) -> tuple[np.ndarray, list[float]]:
         key = (shape, points.shape, hashlib.blake2b(np.ascontiguousarray(points).tobytes(), digest_size=16).digest())
         if key != self.key:
-            self.result, self.key = run_tool(self.tool, points, shape, self.threads), key
+            self.result, self.key = run_tool(self.tool, points, shape, self.threads, self.repeats), key
         return self.result[method]
 
 
-def pcl_anchors(include_roots: Sequence[Path] = INCLUDE_ROOTS, cache: Path | None = None) -> list[Anchor]:
-    """PCL's integral-image and OMP normals, with the tool compiled on first use; ImportError naming
-    `apt-get install libpcl-dev` when PCL's headers are not under `include_roots`."""
+def pcl_estimators(
+    repeats: int, include_roots: Sequence[Path] = INCLUDE_ROOTS, cache: Path | None = None
+) -> list[tuple[str, Callable, bool, str, str]]:
+    """(name, estimate, organized_only, version, about) of PCL's integral-image and OMP normals, with the tool
+    compiled on first use; each estimate returns (normals, its `repeats` timed runs). ImportError naming
+    `apt-get install libpcl-dev` when PCL's headers are not under `include_roots`. `anchors.pcl_anchors` makes
+    them anchors."""
     include = pcl_include(include_roots)
     if include is None:
         raise ImportError(f"PCL's headers are not under {', '.join(map(str, include_roots))} ({INSTALL})")
     tool = build_tool(include, cache or cache_dir())
     threads = os.cpu_count() or 1
-    runs = ToolRuns(tool, threads)
+    runs = ToolRuns(tool, threads, repeats)
     version = f"PCL {tool_version(tool)}"
 
-    def anchor(method: str, name: str, organized_only: bool, about: str) -> Anchor:
+    def estimator(method: str, name: str, organized_only: bool, about: str) -> tuple[str, Callable, bool, str, str]:
         def estimate(points: np.ndarray, shape, radius: float) -> tuple[np.ndarray, list[float]]:
             return runs.get(points, shape, method)
 
         on_threads = "" if organized_only else f" on {threads} threads"
         timing = ", timed inside the tool around the estimate alone"
-        return Anchor(name, estimate, organized_only, version, about + on_threads + timing, times_itself=True)
+        return name, estimate, organized_only, version, about + on_threads + timing
 
-    return [anchor(*method) for method in METHODS]
+    return [estimator(*method) for method in METHODS]
