@@ -41,6 +41,7 @@ def build_patches(
     inlier_seeds: tuple[int, ...] = (),
     pca: tuple[torch.Tensor, torch.Tensor] | None = None,
     point_ids: torch.Tensor | None = None,
+    compiled: bool | None = None,
 ) -> Patches:
     """Build patches from neighbour pools (B, P) of cloud indices, -1 padded (see `NeighbourIndex.ball`).
 
@@ -52,8 +53,13 @@ def build_patches(
     frame. `pca` = (eigenvalues, frames) of these same pools, as `frames.principal_frames` gave them, saves computing
     them twice (hybrid has them from its survey); eigenvalues at any scale give the same curvature. `point_ids` (N,)
     names each cloud point for the hash when the cloud is part of a larger one (a tile): a patch then draws the
-    points it would draw in the whole cloud.
+    points it would draw in the whole cloud. At inference on a CPU (hashed draws, the pool's own frame) the compiled
+    loop of `fused_patches.py` builds the same patches; `compiled=False` keeps this torch code, its reference.
     """
+    if compiled is None:
+        compiled = cloud.device.type == "cpu"
+    if compiled and generator is None and rotation is None and centre_ids is not None:
+        return _compiled(cloud, centres, pool, radius, k, centre_ids, seed, scales, inlier_seeds, point_ids, pca)
     mask = pool >= 0
     valid = mask.sum(dim=1) >= MIN_NEIGHBOURS
     safe = pool.clamp_min(0)
@@ -77,6 +83,31 @@ def build_patches(
         curvature=surface_variation(eigvals),
         eigvals=eigvals,
         scales=scale_fits(local, mask, rot, tuple(scales), tuple(inlier_seeds), POOL_FACTOR * k) if scales else None,
+    )
+
+
+def _compiled(cloud, centres, pool, radius, k, centre_ids, seed, scales, inlier_seeds, point_ids, pca) -> Patches:
+    """`build_patches` at inference on a CPU, by `fused_patches.build`."""
+    from . import fused_patches
+
+    out = fused_patches.build(
+        cloud.numpy(), centres.numpy(), pool.numpy(), radius, k, centre_ids.numpy(), seed,
+        None if point_ids is None else point_ids.numpy(),
+        None if pca is None else tuple(part.to(torch.float64).numpy() for part in pca),
+    )  # fmt: skip
+    t = {name: torch.from_numpy(value) for name, value in out.items()}
+    fits = None
+    if scales:
+        fits = scale_fits(t["local"], pool >= 0, t["rotation"], tuple(scales), tuple(inlier_seeds), POOL_FACTOR * k)
+    return Patches(
+        points=t["points"],
+        rotation=t["rotation"],
+        selected=t["selected"],
+        valid=t["valid"],
+        pca_normal=t["rotation"][:, 2],
+        curvature=surface_variation(t["eigvals"]),
+        eigvals=t["eigvals"],
+        scales=fits,
     )
 
 
