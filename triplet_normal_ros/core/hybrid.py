@@ -3,7 +3,8 @@
 Over pools (`hybrid_kernel`), the gate is a quadric against the pool's PCA plane (`frames.quadric_gain`). On an
 organized range image (`window_hybrid`), the survey is the integral-image window (`windows.py`) with a plane normal
 that models noise along the rays (`ray_noise_normal`), and the gate reads where the window's parts sit off that plane
-(`structure`), so only the gated points pay for a pool and a patch.
+(`structure`), so only the gated points pay for a pool and a patch; the network runs on a lattice of them, and the
+gated pixels between take their lattice neighbours' mean where those agree (`lattice.py`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import torch
 from .conventions import MIN_NEIGHBOURS
 from .frames import quadric_gain, spans_plane, surface_variation
 from .kernels import CHUNK, Call, finish, learned_kernel, network, over_pools, pool_pca
+from .lattice import agreed, plan_lattice
 from .patches import build_patches, to_world
 from .search import PoolSearch, ScanLines
 from .windows import MomentImage, WindowPCA, box_sums
@@ -72,7 +74,7 @@ def window_hybrid(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Hybrid on an organized range image: the window survey everywhere (its ray-noise plane normal and PCL
     curvature), then pools (`open_pools()`, opened only when some point needs one) and the network only where the
-    window's parts sit off its plane (`structure`).
+    window's parts sit off its plane (`structure`), on a lattice of those points (`lattice_network`).
 
     A window less than PART_SPAN pixels across on either axis (a spinning LiDAR's beams at range, a sliver beside
     an edge) cannot be cut into parts, so the cue is blind there; nor is a window that walls cut below three
@@ -102,15 +104,47 @@ def window_hybrid(
         return normals, curvature
     with call.timed("neighbours"):
         search = open_pools()
-    for todo, kernel in ((network_rows, learned_kernel), (pooled, hybrid_kernel)):
-        for out, answer, pool_curvature in over_pools(call, search, cloud, query, todo, kernel, CHUNK, lines):
-            answered = np.isfinite(answer).all(axis=1)
-            normals[out[answered]] = answer[answered]
-            if todo is pooled:  # a thin window's curvature is a sliver's; the pool's is the ball's
-                curvature[out[answered]] = pool_curvature[answered]
-            if progress is not None:
-                progress(len(out))
+    if len(network_rows):
+        pixels = query[network_rows]
+        answer = lattice_network(call, search, cloud, gated.cpu().numpy(), image.width, pixels, lines)
+        answered = np.isfinite(answer).all(axis=1)
+        normals[network_rows[answered]] = answer[answered]
+        if progress is not None:
+            progress(len(network_rows))
+    for out, answer, pool_curvature in over_pools(call, search, cloud, query, pooled, hybrid_kernel, CHUNK, lines):
+        answered = np.isfinite(answer).all(axis=1)
+        normals[out[answered]] = answer[answered]
+        curvature[out[answered]] = pool_curvature[answered]  # a thin window's curvature is a sliver's
+        if progress is not None:
+            progress(len(out))
     return normals, curvature
+
+
+def lattice_network(
+    call: Call, search: PoolSearch, cloud: torch.Tensor, gated: np.ndarray, width: int, pixels: np.ndarray, lines
+) -> np.ndarray:
+    """(M, 3) float32 answers for the gated `pixels` of an image `width` pixels wide: the network on a lattice of the
+    gated pixels, the mean of a pixel's lattice neighbours where they agree, and the network on the pixel's own pool
+    where they do not (`lattice.py`); NaN where the network gives none."""
+    plan = plan_lattice(gated, (len(gated) // width, width), pixels)
+    answers = _network(call, search, cloud, plan.run, lines)
+    with call.timed("lattice"):
+        chosen = agreed(torch.from_numpy(answers), torch.from_numpy(plan.candidates)).numpy().astype(np.float32)
+        lattice = np.isin(pixels, plan.run)
+        chosen[lattice] = answers[np.searchsorted(plan.run, pixels[lattice])]
+    alone = np.flatnonzero(~lattice & ~np.isfinite(chosen).all(axis=1))
+    if len(alone):
+        chosen[alone] = _network(call, search, cloud, pixels[alone], lines)
+    return chosen
+
+
+def _network(call: Call, search: PoolSearch, cloud: torch.Tensor, pixels: np.ndarray, lines: ScanLines) -> np.ndarray:
+    """(len(pixels), 3) float32: the network's answer at each pixel over its pool, NaN where it gives none."""
+    out = np.full((len(pixels), 3), np.nan, dtype=np.float32)
+    every = np.arange(len(pixels))
+    for rows, answer, _ in over_pools(call, search, cloud, pixels, every, learned_kernel, CHUNK, lines):
+        out[rows] = answer
+    return out
 
 
 def survey_and_cue(image: MomentImage, fit: WindowPCA) -> tuple[torch.Tensor, Structure]:

@@ -1,0 +1,115 @@
+"""Hybrid's network on a lattice of the gated pixels (`lattice.py`): which pixels the network answers, when a pixel
+takes its neighbours' mean, and that a frame's answers do not depend on which pixels were asked for."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from triplet_normal_ros.core import lattice
+from triplet_normal_ros.core.conventions import DEPTH_RADIUS
+from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.lattice import agreed, plan_lattice
+from triplet_normal_ros.simulation.range_scans import fold_frames
+
+
+def _neighbours(plan, row: int) -> set[int]:
+    return {int(plan.run[c]) for c in plan.candidates[row] if c >= 0}
+
+
+def test_a_lattice_pixel_is_its_own_only_candidate() -> None:
+    gated = np.ones(6 * 8, dtype=bool)
+    pixels = np.array([2 * 8 + 4])  # row 2, column 4: on the stride-2 lattice
+    plan = plan_lattice(gated, (6, 8), pixels, stride=2)
+    assert _neighbours(plan, 0) == {2 * 8 + 4}
+
+
+def test_a_pixel_between_takes_the_four_lattice_pixels_around_it() -> None:
+    gated = np.ones(6 * 8, dtype=bool)
+    plan = plan_lattice(gated, (6, 8), np.array([3 * 8 + 5, 2 * 8 + 5]), stride=2)
+    assert _neighbours(plan, 0) == {2 * 8 + 4, 2 * 8 + 6, 4 * 8 + 4, 4 * 8 + 6}
+    assert _neighbours(plan, 1) == {2 * 8 + 4, 2 * 8 + 6}  # on a lattice row: the columns either side
+    assert set(plan.run.tolist()) == {2 * 8 + 4, 2 * 8 + 6, 4 * 8 + 4, 4 * 8 + 6}
+
+
+def test_only_gated_lattice_pixels_inside_the_image_are_candidates() -> None:
+    gated = np.ones(5 * 5, dtype=bool)
+    gated[0 * 5 + 0] = False
+    plan = plan_lattice(gated, (5, 5), np.array([1 * 5 + 1, 4 * 5 + 4, 3 * 5 + 4]), stride=3)
+    assert _neighbours(plan, 0) == {0 * 5 + 3, 3 * 5 + 0, 3 * 5 + 3}  # (0, 0) is not gated
+    assert _neighbours(plan, 2) == {3 * 5 + 3}  # column 6 lies past the edge
+    lone = np.zeros(5 * 5, dtype=bool)
+    lone[1 * 5 + 1] = True  # a gated pixel with no gated lattice pixel around it
+    ungated = plan_lattice(lone, (5, 5), np.array([1 * 5 + 1]), stride=2)
+    assert _neighbours(ungated, 0) == set() and len(ungated.run) == 0
+
+
+def test_stride_one_sends_every_gated_pixel_to_the_network() -> None:
+    gated = np.random.default_rng(0).random(20 * 30) < 0.3
+    pixels = np.flatnonzero(gated)
+    plan = plan_lattice(gated, (20, 30), pixels, stride=1)
+    assert np.array_equal(plan.run, pixels)
+    assert np.array_equal(plan.candidates[:, 0], np.arange(len(pixels))) and (plan.candidates[:, 1:] == -1).all()
+
+
+def _unit(degrees: float) -> list[float]:
+    return [math.sin(math.radians(degrees)), 0.0, math.cos(math.radians(degrees))]
+
+
+def test_no_lattice_answers_at_all_give_nan() -> None:
+    out = agreed(torch.empty((0, 3)), torch.full((5, 4), -1))
+    assert out.shape == (5, 3) and torch.isnan(out).all()
+
+
+def test_agreeing_answers_give_their_sign_aligned_mean() -> None:
+    answers = torch.tensor([_unit(-4), [-x for x in _unit(4)], _unit(0)], dtype=torch.float32)
+    out = agreed(answers, torch.tensor([[0, 1, -1, -1]]))
+    assert torch.allclose(out[0].abs(), torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64), atol=1e-6)
+
+
+def test_disagreeing_or_unanswered_neighbours_give_nan() -> None:
+    spread = 2.2 * lattice.AGREE_DEGREES
+    answers = torch.tensor([_unit(0), _unit(spread), [math.nan] * 3], dtype=torch.float32)
+    candidates = torch.tensor([[0, 1, -1, -1], [2, -1, -1, -1], [-1, -1, -1, -1], [0, 2, -1, -1], [0, -1, -1, -1]])
+    out = agreed(torch.cat((answers, torch.tensor([_unit(1)]))), torch.cat((candidates, torch.tensor([[0, 3, 2, -1]]))))
+    # Across a fold; the network gave none; no neighbour; one answer left once the NaN is dropped; one alone:
+    assert torch.isnan(out[:5]).all()
+    assert torch.allclose(out[5], torch.tensor(_unit(0.5), dtype=torch.float64))  # the NaN answer is left out
+
+
+@pytest.fixture(scope="module")
+def folds():
+    frame = fold_frames(1, seed=100)[0]  # boxes on a floor, from a seed eval never scores
+    return frame.points.reshape(-1, 3).astype(np.float64), frame.points.shape[:2]
+
+
+@pytest.fixture(scope="module")
+def lite():
+    return NormalEstimator("hybrid", radius=DEPTH_RADIUS, checkpoint="lite")
+
+
+def test_a_sparse_query_gets_the_whole_frames_answers(folds, lite) -> None:
+    points, shape = folds
+    whole, _ = lite.estimate(points, shape=shape)
+    gated_share = lite.last_run.network_fraction
+    query = np.flatnonzero(np.isfinite(points).all(axis=1))[::37]
+    sparse, _ = lite.estimate(points, query, shape=shape)
+    assert gated_share > 0.02  # the frame's folds open the gate, so the lattice decides many answers
+    np.testing.assert_allclose(sparse, whole[query], atol=1e-6)
+
+
+def test_the_lattice_runs_the_network_on_fewer_pixels_and_keeps_lattice_answers(folds, lite, monkeypatch) -> None:
+    points, shape = folds
+    on_lattice, _ = lite.estimate(points, shape=shape)
+    lattice_passes = lite.last_run.network
+    monkeypatch.setattr(lattice, "STRIDE", 1)
+    everywhere, _ = lite.estimate(points, shape=shape)
+    assert lattice_passes < 0.6 * lite.last_run.network
+    grid = np.zeros(shape, dtype=bool)
+    grid[::2, ::2] = True
+    np.testing.assert_array_equal(on_lattice[grid.reshape(-1)], everywhere[grid.reshape(-1)])
+    answered = np.isfinite(everywhere).all(axis=1)
+    assert np.array_equal(np.isfinite(on_lattice).all(axis=1), answered)
