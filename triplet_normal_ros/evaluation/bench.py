@@ -313,7 +313,10 @@ def markdown(rows, searches, gflops, net, conversions, command: str) -> str:
         "Every method times the same fixed-seed query subset with neighbourhoods from the whole cloud; *neighbours* "
         "includes building the search once per cloud; *s per cloud* = the per-cloud cost (measured by a 16-query run: "
         "building the search, moving the cloud) + the per-query cost × every valid point; *× PCA-30* is that time over "
-        "PCA at k = 30 on the same cloud in this run.",
+        "PCA at k = 30 on the same cloud in this run. On an organized frame hybrid's network runs on a lattice of the "
+        "gated pixels, whose passes a sparse query pays for each pixel it asks for (up to four) and a whole frame "
+        "shares, so there *s per cloud* overstates a whole frame's time (docs/tools/frame_targets.py times whole "
+        "frames).",
         "",
         "| cloud | method | path | timed | neighbours pts/s | pca | gate | patches | network | network share "
         "| total pts/s | s per cloud | × PCA-30 |",
