@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core import lattice
+from triplet_normal_ros.core import hybrid, lattice
 from triplet_normal_ros.core.conventions import DEPTH_RADIUS
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.lattice import agreed, plan_lattice
@@ -110,6 +110,24 @@ def test_the_lattice_runs_the_network_on_fewer_pixels_and_keeps_lattice_answers(
     assert lattice_passes < 0.6 * lite.last_run.network
     grid = np.zeros(shape, dtype=bool)
     grid[::2, ::2] = True
-    np.testing.assert_array_equal(on_lattice[grid.reshape(-1)], everywhere[grid.reshape(-1)])
+    np.testing.assert_allclose(on_lattice[grid.reshape(-1)], everywhere[grid.reshape(-1)], atol=1e-6)
     answered = np.isfinite(everywhere).all(axis=1)
     assert np.array_equal(np.isfinite(on_lattice).all(axis=1), answered)
+    assert np.abs(on_lattice - everywhere).max(where=answered[:, None], initial=0) > 1e-3  # the pixels between differ
+
+
+def test_pixels_whose_neighbours_never_agree_get_their_own_network_answer(folds, lite, monkeypatch) -> None:
+    points, shape = folds
+    monkeypatch.setattr(hybrid, "agreed", lambda answers, candidates: torch.full((len(candidates), 3), torch.nan))
+    alone, _ = lite.estimate(points, shape=shape)
+    monkeypatch.setattr(lattice, "STRIDE", 1)
+    everywhere, _ = lite.estimate(points, shape=shape)
+    np.testing.assert_allclose(alone, everywhere, atol=1e-6)
+
+
+def test_progress_counts_every_query_point_once(folds, lite) -> None:
+    points, shape = folds
+    query = np.arange(0, len(points), 3)
+    done = []
+    lite.estimate(points, query, shape=shape, progress=done.append)
+    assert lite.last_run.network > 0 and sum(done) == len(query)

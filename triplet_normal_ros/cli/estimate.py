@@ -169,7 +169,7 @@ def _tiled(args: argparse.Namespace, estimator, points: np.ndarray, query: np.nd
 def _method(estimator) -> str:
     if estimator.method != "hybrid":
         return estimator.method
-    return f"hybrid, {estimator.last_run.network_fraction:.0%} through the network"
+    return f"hybrid, network passes for {estimator.last_run.network_fraction:.0%} of the points"
 
 
 def estimate_with_progress(

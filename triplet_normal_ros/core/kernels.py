@@ -45,7 +45,9 @@ class RunInfo:
 
     plan: Plan | None = None
     estimated: int = 0  # finite query points
-    network: int = 0  # of those, how many went through the network (all for learned, the gated ones for hybrid)
+    #: Network passes: every point for learned, the gated ones for hybrid; on a range image, hybrid's lattice pixels
+    #: and the gated pixels its lattice leaves to their own pass, which a sparse query may draw from outside it.
+    network: int = 0
 
     @property
     def search(self) -> str:
@@ -54,6 +56,8 @@ class RunInfo:
 
     @property
     def network_fraction(self) -> float:
+        """Network passes per estimated point: the share of a whole cloud that the network answered; on a sparse
+        query of a range image hybrid's lattice passes can exceed it (and the points asked for)."""
         return self.network / self.estimated if self.estimated else 0.0
 
 

@@ -9,8 +9,11 @@ sits across a fold from some of them), or fewer than two answered (a band one pi
 its own pool. The mean of agreeing answers also averages the network's own noise: on frames eval never scores this is
 as accurate as the network on every gated pixel, at 40 % of its passes (docs/RESULTS.md, "The network on a lattice").
 
-A pixel's answer depends on the image alone, not on which pixels were asked for: a sparse query gets the answers the
-whole frame gets, at up to four network passes per gated pixel asked for.
+A pixel that takes its neighbours' mean never opens its own pool, so where that pool would have given no answer (it
+lies on one scan line) the pixel has the neighbours' network answer instead of the survey's; both are planes its
+window determines. A pixel's answer depends on the image alone, not on which pixels were asked for: a sparse query
+gets the answers the whole frame gets, at up to five network passes per gated pixel asked for (its four lattice
+neighbours, and its own where they disagree).
 """
 
 from __future__ import annotations

@@ -56,8 +56,7 @@ def build_patches(
     points it would draw in the whole cloud. At inference on a CPU (hashed draws, the pool's own frame) the compiled
     loop of `fused_patches.py` builds the same patches; `compiled=False` keeps this torch code, its reference.
     """
-    if compiled is None:
-        compiled = cloud.device.type == "cpu"
+    compiled = compiled is not False and cloud.device.type == "cpu"
     if compiled and generator is None and rotation is None and centre_ids is not None:
         return _compiled(cloud, centres, pool, radius, k, centre_ids, seed, scales, inlier_seeds, point_ids, pca)
     mask = pool >= 0

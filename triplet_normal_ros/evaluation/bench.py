@@ -314,7 +314,7 @@ def markdown(rows, searches, gflops, net, conversions, command: str) -> str:
         "includes building the search once per cloud; *s per cloud* = the per-cloud cost (measured by a 16-query run: "
         "building the search, moving the cloud) + the per-query cost × every valid point; *× PCA-30* is that time over "
         "PCA at k = 30 on the same cloud in this run. On an organized frame hybrid's network runs on a lattice of the "
-        "gated pixels, whose passes a sparse query pays for each pixel it asks for (up to four) and a whole frame "
+        "gated pixels, whose passes a sparse query pays for each pixel it asks for (up to five) and a whole frame "
         "shares, so there *s per cloud* overstates a whole frame's time (docs/tools/frame_targets.py times whole "
         "frames).",
         "",

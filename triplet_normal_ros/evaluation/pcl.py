@@ -149,10 +149,13 @@ def pcl_estimators(
     include = pcl_include(include_roots)
     if include is None:
         raise ImportError(f"PCL's headers are not under {', '.join(map(str, include_roots))} ({INSTALL})")
-    tool = build_tool(include, cache or cache_dir())
+    try:
+        tool = build_tool(include, cache or cache_dir())
+        version = f"PCL {tool_version(tool)}"
+    except (OSError, subprocess.CalledProcessError, ValueError, KeyError) as error:  # built, but does not run
+        raise ImportError(f"PCL's tool does not run here ({type(error).__name__}: {error}; {INSTALL})") from None
     threads = os.cpu_count() or 1
     runs = ToolRuns(tool, threads, repeats)
-    version = f"PCL {tool_version(tool)}"
 
     def estimator(method: str, name: str, organized_only: bool, about: str) -> tuple[str, Callable, bool, str, str]:
         def estimate(points: np.ndarray, shape, radius: float) -> tuple[np.ndarray, list[float]]:
