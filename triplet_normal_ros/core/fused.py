@@ -230,17 +230,23 @@ def _moments_down(points, ranges, offset, table, lo, hi):
         for r in range(points.shape[0]):
             if np.isfinite(ranges[r, c]):
                 x, y, z = points[r, c, 0] - offset[0], points[r, c, 1] - offset[1], points[r, c, 2] - offset[2]
-                running[0] += 1.0
-                running[1] += x
-                running[2] += y
-                running[3] += z
-                running[4] += x * x
-                running[5] += x * y
-                running[6] += x * z
-                running[7] += y * y
-                running[8] += y * z
-                running[9] += z * z
+                add_moments(running, x, y, z)
             table[r + 1, c + 1, :] = running
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def add_moments(sums, x, y, z):
+    """Add one point to `sums`, the ten moment channels (count, x, y, z, xx, xy, xz, yy, yz, zz)."""
+    sums[0] += 1.0
+    sums[1] += x
+    sums[2] += y
+    sums[3] += z
+    sums[4] += x * x
+    sums[5] += x * y
+    sums[6] += x * z
+    sums[7] += y * y
+    sums[8] += y * z
+    sums[9] += z * z
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

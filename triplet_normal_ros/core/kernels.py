@@ -182,8 +182,21 @@ def pool_normals(
     gather in torch) and centred in place, so the only big allocation is that block; E[x x^T] is then one batched
     matmul. Offsets from the query point (|x| <= r) keep E[x x^T] - m m^T exact enough in float64. The 3 × 3
     eigenproblem is the closed form of `eigen.smallest_eigenvector` instead of batched eigh (most of the old cost),
-    with eigh only where the two smallest eigenvalues nearly coincide (`EIGEN_GAP`).
+    with eigh only where the two smallest eigenvalues nearly coincide (`EIGEN_GAP`). On a CPU one compiled loop per
+    pool does the same (`fused_pools.pool_normals`).
     """
+    if cloud.device.type == "cpu":
+        from . import fused_pools
+
+        found = fused_pools.pool_normals(cloud.numpy(), pool.numpy(), rows.numpy(), EIGEN_GAP)
+        return tuple(torch.from_numpy(part) for part in found)
+    return pool_normals_torch(cloud, centres, pool, rows)
+
+
+def pool_normals_torch(
+    cloud: torch.Tensor, centres: torch.Tensor, pool: torch.Tensor, rows: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """`pool_normals` in torch: what a GPU runs, and the reference of the compiled loop a CPU runs."""
     mask = pool >= 0
     count = mask.sum(dim=1)
     valid = count >= MIN_NEIGHBOURS

@@ -54,7 +54,7 @@ def build_patches(
     them twice (hybrid has them from its survey); eigenvalues at any scale give the same curvature. `point_ids` (N,)
     names each cloud point for the hash when the cloud is part of a larger one (a tile): a patch then draws the
     points it would draw in the whole cloud. At inference on a CPU (hashed draws, the pool's own frame) the compiled
-    loop of `fused_patches.py` builds the same patches; `compiled=False` keeps this torch code, its reference.
+    loop of `fused_pools.py` builds the same patches; `compiled=False` keeps this torch code, its reference.
     """
     compiled = compiled is not False and cloud.device.type == "cpu"
     if compiled and generator is None and rotation is None and centre_ids is not None:
@@ -86,10 +86,10 @@ def build_patches(
 
 
 def _compiled(cloud, centres, pool, radius, k, centre_ids, seed, scales, inlier_seeds, point_ids, pca) -> Patches:
-    """`build_patches` at inference on a CPU, by `fused_patches.build`."""
-    from . import fused_patches
+    """`build_patches` at inference on a CPU, by `fused_pools.build`."""
+    from . import fused_pools
 
-    out = fused_patches.build(
+    out = fused_pools.build(
         cloud.numpy(), centres.numpy(), pool.numpy(), radius, k, centre_ids.numpy(), seed,
         None if point_ids is None else point_ids.numpy(),
         None if pca is None else tuple(part.to(torch.float64).numpy() for part in pca),

@@ -1,4 +1,4 @@
-"""The compiled patch builder (`fused_patches.py`) against its torch reference (`patches.build_patches`), pool by
+"""The compiled patch builder (`fused_pools.py`) against its torch reference (`patches.build_patches`), pool by
 pool: real Kinect pools from the KD-tree, simulated depth pools beside holes and edges, pools smaller than k and
 too small for a plane, tiles that name their points, and a scale head's plane fits."""
 
@@ -90,3 +90,21 @@ def test_a_given_pca_frame_is_signed_and_used_as_the_torch_code_does() -> None:
     compiled, reference = _both(cloud, rows, pool, pca=(eigvals, frame))
     _assert_same(compiled, reference)
     torch.testing.assert_close(compiled.eigvals, eigvals)  # the given eigenvalues, not the patch's own
+
+
+@pytest.mark.parametrize("size", [30, 500])
+def test_compiled_pool_pca_gives_the_torch_normals(size) -> None:
+    from triplet_normal_ros.core.kernels import pool_normals, pool_normals_torch
+
+    points = depth_frame(5).points.reshape(-1, 3).astype(np.float64)
+    cloud, rows, pool = _pools(points, 29, size)
+    pool[::17, 2:] = -1  # too few for a plane
+    pool[::19, 4:] = -1  # collinear or nearly so: eigh's branch
+    normal, eigvals, valid = pool_normals(cloud, cloud[rows], pool, rows)
+    ref_normal, ref_eigvals, ref_valid = pool_normals_torch(cloud, cloud[rows], pool, rows)
+    assert torch.equal(valid, ref_valid) and (~valid).sum() > 10
+    torch.testing.assert_close(eigvals, ref_eigvals, rtol=1e-9, atol=1e-18)
+    both = torch.isfinite(normal).all(dim=1) & torch.isfinite(ref_normal).all(dim=1)
+    assert torch.equal(torch.isfinite(normal).all(dim=1), torch.isfinite(ref_normal).all(dim=1))
+    assert both.sum() > 0.9 * len(rows)
+    assert ((normal[both] * ref_normal[both]).sum(dim=1).abs() > 1 - 1e-9).all()

@@ -1,11 +1,15 @@
-"""`patches.build_patches` for inference on a CPU, compiled: one loop per pool instead of a few dozen torch passes.
+"""The pool path's per-pool work on a CPU, compiled: one loop per pool instead of a few dozen torch passes.
 
-At inference a patch's k points are drawn by the hash of (centre, neighbour, seed), never by a generator, and the
-frame is the pool's own PCA frame, so each pool's patch depends on that pool alone: one numba loop per pool gathers
-its offsets, sums its covariance, takes LAPACK's eigen-decomposition (as torch's eigh does), fixes the axes' signs
-by the third moments, hashes the keys and keeps the k smallest. The torch code in `patches.py` stays the reference
-(its docstrings say why each step is what it is); test/core/test_fused_patches.py compares the two pool by pool.
-The pools run in bands on `fused._bands`'s threads, for the reasons `fused.py` gives.
+* **Pool PCA** (`kernels.pool_normals`, `pca`'s pools): the covariance of the offsets from the query point, the
+  closed-form eigen-decomposition of `fused._eigen` (`eigen.smallest_eigenvector`'s), and LAPACK's eigh where the two
+  smallest eigenvalues nearly coincide (`kernels.EIGEN_GAP`), as the torch code does.
+* **Inference patches** (`patches.build_patches`). A patch's k points are drawn by the hash of (centre, neighbour,
+  seed), never by a generator, and the frame is the pool's own PCA frame, so each patch depends on its pool alone:
+  one loop gathers the pool's offsets, sums its covariance, takes LAPACK's eigen-decomposition (as torch's eigh
+  does), fixes the axes' signs by the third moments, hashes the keys and keeps the k smallest.
+
+The torch code stays the reference (its docstrings say why each step is what it is); test/core/test_fused_pools.py
+compares the two pool by pool. The pools run in bands on `fused._bands`'s threads, for the reasons `fused.py` gives.
 """
 
 from __future__ import annotations
@@ -14,7 +18,8 @@ import numpy as np
 from numba import njit
 
 from .conventions import MIN_NEIGHBOURS
-from .fused import _bands
+from .fused import _bands, add_moments
+from .fused import _eigen as _closed_form
 
 _MASK32 = 0xFFFFFFFF
 
@@ -47,12 +52,60 @@ def build(
     return out
 
 
+def pool_normals(
+    cloud: np.ndarray, pool: np.ndarray, rows: np.ndarray, gap: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`kernels.pool_normals` of the -1 padded `pool` (M, P) around the cloud points `rows` (M,): unit normals
+    (M, 3), ascending eigenvalues (M, 3) and validity (M,); eigh where the two smallest eigenvalues lie within `gap`
+    of the trace."""
+    m = len(pool)
+    normal, eigvals, valid = np.empty((m, 3)), np.empty((m, 3)), np.zeros(m, dtype=np.bool_)
+    _bands(
+        _pool_pca, m, np.ascontiguousarray(cloud, dtype=np.float64), np.ascontiguousarray(pool, dtype=np.int64),
+        np.ascontiguousarray(rows, dtype=np.int64), float(gap), normal, eigvals, valid, pieces=4,
+    )  # fmt: skip
+    return normal, eigvals, valid
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _pool_pca(cloud, pool, rows, gap, normal, eigvals, valid, lo, hi):
+    cov = np.empty((3, 3))
+    sums = np.empty(10)
+    for b in range(lo, hi):
+        centre = rows[b]
+        sums[:] = 0.0
+        for j in range(pool.shape[1]):
+            idx = pool[b, j]
+            if idx >= 0:
+                x, y, z = (
+                    cloud[idx, 0] - cloud[centre, 0],
+                    cloud[idx, 1] - cloud[centre, 1],
+                    cloud[idx, 2] - cloud[centre, 2],
+                )
+                add_moments(sums, x, y, z)
+        valid[b] = sums[0] >= MIN_NEIGHBOURS
+        n = max(sums[0], 1.0)
+        mx, my, mz = sums[1] / n, sums[2] / n, sums[3] / n
+        a00, a01, a02 = sums[4] / n - mx * mx, sums[5] / n - mx * my, sums[6] / n - mx * mz
+        a11, a12, a22 = sums[7] / n - my * my, sums[8] / n - my * mz, sums[9] / n - mz * mz
+        _closed_form(a00, a01, a02, a11, a12, a22, eigvals[b], normal[b])
+        if valid[b] and eigvals[b, 1] - eigvals[b, 0] <= gap * (eigvals[b, 0] + eigvals[b, 1] + eigvals[b, 2]):
+            cov[0, 0], cov[0, 1], cov[0, 2] = a00, a01, a02
+            cov[1, 0], cov[1, 1], cov[1, 2] = a01, a11, a12
+            cov[2, 0], cov[2, 1], cov[2, 2] = a02, a12, a22
+            values, vectors = np.linalg.eigh(cov)
+            for a in range(3):
+                eigvals[b, a] = max(values[a], 0.0)
+                normal[b, a] = vectors[a, 0]
+
+
 def warm() -> None:
     """Compile (or load from the cache) the kernels on a few tiny pools, with and without a given frame, so that no
     cloud waits for it: the node's start-up probe calls this whatever its method."""
     v, u = np.mgrid[0:4, 0:4].astype(np.float64)
     cloud = np.stack((u, v, np.ones_like(u) + 0.1 * u * v), axis=-1).reshape(-1, 3)
     pool = np.arange(16, dtype=np.int64).reshape(2, 8)
+    pool_normals(cloud, pool, np.arange(2), 1e-3)
     out = build(cloud, cloud[:2], pool, 3.0, 4, np.arange(2), 0, None)
     build(cloud, cloud[:2], pool, 3.0, 4, np.arange(2), 0, np.arange(16), (out["eigvals"], out["rotation"]))
 
