@@ -6,7 +6,8 @@ Kept under test/ so the runtime package ships only what ``make demo`` uses.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 from sensor_msgs.msg import PointCloud2
 
@@ -40,3 +41,12 @@ def cropped(frame: Frame, top: int, left: int, height: int, width: int) -> Frame
     """A rectangular window of an organized frame, still organized."""
     rows, cols = slice(top, top + height), slice(left, left + width)
     return Frame(f"{frame.name}[{top}:{left}]", frame.xyz[rows, cols], frame.rgb[rows, cols])
+
+
+@contextmanager
+def matched_client(input_topic: str, output_topic: str, timeout: float) -> Iterator[ProbeClient]:
+    """A ProbeClient whose topics and parameter services have matched the node's within `timeout` seconds; the test
+    fails there if they never do, instead of at its first send."""
+    with ProbeClient(input_topic, output_topic) as client:
+        assert client.wait_for_node(timeout), "the node's topics and parameter services never matched"
+        yield client

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from conftest import running_node
 from helpers import angles_deg, ball_pca, held_out_depth_frame
-from probe_client import ProbeClient
+from probe_client import ProbeClient, matched_client
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field, read_xyz
 from triplet_normal_ros.ros.replay import Frame
@@ -37,8 +37,7 @@ def client(install_prefix: Path, ros_env: dict[str, str], tmp_path_factory) -> I
     folder = tmp_path_factory.mktemp("default_node")
     with running_node(install_prefix, ros_env, folder, PARAMS, {"input": IN, "output": OUT}, (IN,)) as node:
         assert "method=hybrid" in node.log, node.log  # the default, stated in the ready line
-        with ProbeClient(IN, OUT) as c:
-            assert c.wait_for_node(60), "the node's topics and parameter services never matched"
+        with matched_client(IN, OUT, 60) as c:
             yield c
 
 

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from conftest import NodeProcess, running_node
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from probe_client import ProbeClient, cropped
+from probe_client import ProbeClient, cropped, matched_client
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2, PointField
 
@@ -84,8 +84,7 @@ def node(install_prefix: Path, ros_env: dict[str, str], tmp_path_factory) -> Ite
 
 @pytest.fixture(scope="module")
 def client(node: NodeProcess) -> Iterator[ProbeClient]:
-    with ProbeClient(IN, OUT) as c:
-        assert c.wait_for_node(WAIT_S), "the node's topics and parameter services never matched"
+    with matched_client(IN, OUT, WAIT_S) as c:
         yield c
 
 

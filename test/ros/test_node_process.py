@@ -26,7 +26,7 @@ import pytest
 import torch
 from conftest import PACKAGE, STARTUP_S, NodeProcess, installed_env, running_node, site_packages
 from helpers import angles_deg, ball_pca, held_out_depth_frame
-from probe_client import ProbeClient, cropped
+from probe_client import ProbeClient, cropped, matched_client
 from scipy.spatial import cKDTree
 from sensor_msgs.msg import PointCloud2, PointField
 
@@ -58,8 +58,7 @@ def pca_node(install_prefix: Path, ros_env: dict[str, str], tmp_path_factory) ->
 
 @pytest.fixture(scope="module")
 def client(pca_node: NodeProcess) -> Iterator[ProbeClient]:
-    with ProbeClient(IN, OUT) as c:
-        assert c.wait_for_node(30), "the node's topics and parameter services never matched"
+    with matched_client(IN, OUT, 30) as c:
         yield c
 
 
