@@ -2,7 +2,8 @@
 
 * **Pool PCA** (`kernels.pool_normals`, `pca`'s pools): the covariance of the offsets from the query point, the
   closed-form eigen-decomposition of `fused._eigen` (`eigen.smallest_eigenvector`'s), and LAPACK's eigh where the two
-  smallest eigenvalues nearly coincide (`kernels.EIGEN_GAP`), as the torch code does.
+  smallest eigenvalues nearly coincide (`kernels.EIGEN_GAP`), as the torch code does. Over the KD-tree's pools
+  (`tree_normals`) the search and the sums are one loop per point, and the pools are never stored.
 * **Inference patches** (`patches.build_patches`). A patch's k points are drawn by the hash of (centre, neighbour,
   seed), never by a generator, and the frame is the pool's own PCA frame, so each patch depends on its pool alone:
   one loop gathers the pool's offsets, sums its covariance, takes LAPACK's eigen-decomposition (as torch's eigh
@@ -20,6 +21,7 @@ from numba import njit
 from .conventions import MIN_NEIGHBOURS
 from .fused import _bands, add_moments
 from .fused import _eigen as _closed_form
+from .kdtree import KDTree, _nearest_one, scratch_for
 
 _MASK32 = 0xFFFFFFFF
 
@@ -83,20 +85,64 @@ def _pool_pca(cloud, pool, rows, gap, normal, eigvals, valid, lo, hi):
                     cloud[idx, 2] - cloud[centre, 2],
                 )
                 add_moments(sums, x, y, z)
-        valid[b] = sums[0] >= MIN_NEIGHBOURS
-        n = max(sums[0], 1.0)
-        mx, my, mz = sums[1] / n, sums[2] / n, sums[3] / n
-        a00, a01, a02 = sums[4] / n - mx * mx, sums[5] / n - mx * my, sums[6] / n - mx * mz
-        a11, a12, a22 = sums[7] / n - my * my, sums[8] / n - my * mz, sums[9] / n - mz * mz
-        _closed_form(a00, a01, a02, a11, a12, a22, eigvals[b], normal[b])
-        if valid[b] and eigvals[b, 1] - eigvals[b, 0] <= gap * (eigvals[b, 0] + eigvals[b, 1] + eigvals[b, 2]):
-            cov[0, 0], cov[0, 1], cov[0, 2] = a00, a01, a02
-            cov[1, 0], cov[1, 1], cov[1, 2] = a01, a11, a12
-            cov[2, 0], cov[2, 1], cov[2, 2] = a02, a12, a22
-            values, vectors = np.linalg.eigh(cov)
-            for a in range(3):
-                eigvals[b, a] = max(values[a], 0.0)
-                normal[b, a] = vectors[a, 0]
+        valid[b] = _moments_pca(sums, gap, cov, eigvals[b], normal[b])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _moments_pca(sums, gap, cov, eigvals, normal):
+    """The pool's eigenvalues (ascending) and normal from its ten moment sums (offsets from the query point): the
+    closed form, eigh where the two smallest eigenvalues lie within `gap` of the trace; returns whether the pool
+    holds MIN_NEIGHBOURS points."""
+    valid = sums[0] >= MIN_NEIGHBOURS
+    n = max(sums[0], 1.0)
+    mx, my, mz = sums[1] / n, sums[2] / n, sums[3] / n
+    a00, a01, a02 = sums[4] / n - mx * mx, sums[5] / n - mx * my, sums[6] / n - mx * mz
+    a11, a12, a22 = sums[7] / n - my * my, sums[8] / n - my * mz, sums[9] / n - mz * mz
+    _closed_form(a00, a01, a02, a11, a12, a22, eigvals, normal)
+    if valid and eigvals[1] - eigvals[0] <= gap * (eigvals[0] + eigvals[1] + eigvals[2]):
+        cov[0, 0], cov[0, 1], cov[0, 2] = a00, a01, a02
+        cov[1, 0], cov[1, 1], cov[1, 2] = a01, a11, a12
+        cov[2, 0], cov[2, 1], cov[2, 2] = a02, a12, a22
+        values, vectors = np.linalg.eigh(cov)
+        for a in range(3):
+            eigvals[a] = max(values[a], 0.0)
+            normal[a] = vectors[a, 0]
+    return valid
+
+
+def tree_normals(
+    tree: KDTree, centres: np.ndarray, rows: np.ndarray | None, radius: float, k: int, gap: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`pool_normals` of the nearest `k` points inside the ball around each centre, searched and summed in one loop
+    per point (`KDTree.nearest`'s search; `rows` as there): the pools are never stored, and their points are summed
+    while the search has them in cache."""
+    m = len(centres)
+    normal, eigvals, valid = np.full((m, 3), np.nan), np.full((m, 3), np.nan), np.zeros(m, dtype=np.bool_)
+    if tree.size and m and k > 0:
+        coordinates, at, which = tree.in_leaf_order(centres, rows)
+        _bands(
+            _tree_pca, m, tree.points, tree.ids, tree.span, tree.box, tree.depth, coordinates, at, which,
+            float(radius) ** 2, int(k), float(gap), normal, eigvals, valid, pieces=4,
+        )  # fmt: skip
+    return normal, eigvals, valid
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _tree_pca(pts, ids, span, box, depth, centres, at, which, r2, k, gap, normal, eigvals, valid, lo, hi):
+    scratch = scratch_for(k)
+    cov = np.empty((3, 3))
+    sums = np.empty(10)
+    for j in range(lo, hi):
+        c, q = at[j], which[j]
+        x, y, z = centres[c, 0], centres[c, 1], centres[c, 2]
+        count = _nearest_one(pts, ids, span, box, depth, x, y, z, r2, k, scratch)
+        if count == 0:
+            continue
+        sums[:] = 0.0
+        for a in range(count):
+            t = scratch.best_pos[a]
+            add_moments(sums, pts[t, 0] - x, pts[t, 1] - y, pts[t, 2] - z)
+        valid[q] = _moments_pca(sums, gap, cov, eigvals[q], normal[q])
 
 
 def warm() -> None:
@@ -106,6 +152,7 @@ def warm() -> None:
     cloud = np.stack((u, v, np.ones_like(u) + 0.1 * u * v), axis=-1).reshape(-1, 3)
     pool = np.arange(16, dtype=np.int64).reshape(2, 8)
     pool_normals(cloud, pool, np.arange(2), 1e-3)
+    tree_normals(KDTree(cloud), cloud[:2], np.arange(2), 3.0, 8, 1e-3)
     out = build(cloud, cloud[:2], pool, 3.0, 4, np.arange(2), 0, None)
     build(cloud, cloud[:2], pool, 3.0, 4, np.arange(2), 0, np.arange(16), (out["eigvals"], out["rotation"]))
 

@@ -1,10 +1,11 @@
-"""Ball neighbourhoods from a cKDTree, as fixed-width index arrays so everything downstream stays vectorised."""
+"""Ball neighbourhoods from the compiled KD-tree (kdtree.py), as fixed-width index arrays so everything downstream
+stays vectorised."""
 
 from collections.abc import Iterator
 
 import numpy as np
-import torch
-from scipy.spatial import cKDTree
+
+from .kdtree import KDTree
 
 #: Queries are answered in chunks so a (chunk, max_nn) index block stays in the tens of MB.
 _CHUNK_ENTRIES = 4_000_000
@@ -19,47 +20,52 @@ class NeighbourIndex:
             raise ValueError(f"points must have shape (N, 3), got {points.shape}")
         self.points = points
         self.finite = np.isfinite(points).all(axis=1)
-        self._original = np.flatnonzero(self.finite)
-        # The tree's indices map back to the cloud's in one take, its "no neighbour" index (n) to the -1 padding.
-        self._to_original = np.append(self._original, -1)
-        # Sliding-midpoint splits: the same exact answers, built ~40 % and queried ~6 % faster than median splits
-        # (a 640 × 480 depth frame, k = 30).
-        self._tree = (
-            cKDTree(np.asarray(points[self.finite], dtype=np.float64), balanced_tree=False)
-            if self._original.size
-            else None
-        )
+        original = np.flatnonzero(self.finite)
+        # The tree answers with the cloud's rows; a cloud row's place among the finite points is its row in the tree.
+        self._tree = KDTree(np.asarray(points[self.finite], dtype=np.float64), ids=original)
+        self._tree_row = np.full(len(points), -1, dtype=np.int64)
+        self._tree_row[original] = np.arange(len(original))
 
-    def ball(self, centres: np.ndarray, radius: float, max_nn: int) -> tuple[np.ndarray, np.ndarray]:
-        """The nearest `max_nn` points within `radius` of each centre, sorted by distance.
+    def ball(
+        self, centres: np.ndarray, radius: float, max_nn: int, rows: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The nearest `max_nn` points strictly within `radius` of each centre (the paper's ||p_j - p_i|| < r),
+        sorted by distance, equal distances by row.
 
         Returns (idx (M, max_nn) int64 padded with -1, counts (M,) int64). Non-finite centres get no neighbours.
         """
-        idx = self.nearest(centres, radius, max_nn)
+        idx = self.nearest(centres, radius, max_nn, rows)
         return idx, np.count_nonzero(idx >= 0, axis=1).astype(np.int64, copy=False)
 
-    def nearest(self, centres: np.ndarray, radius: float, max_nn: int) -> np.ndarray:
-        """`ball` without the counts: idx (M, max_nn) int64, -1 padded (the pool of the `kdtree` search)."""
+    def nearest(self, centres: np.ndarray, radius: float, max_nn: int, rows: np.ndarray | None = None) -> np.ndarray:
+        """`ball` without the counts: idx (M, max_nn) int64, -1 padded (the pool of the `kdtree` search). Where the
+        centres are points of this cloud, `rows` (M,) names their rows, and the search runs in the tree's order
+        (`KDTree.nearest`)."""
         centres = np.asarray(centres, dtype=np.float64)
-        if self._tree is None or len(centres) == 0:
-            return np.full((len(centres), max_nn), -1, dtype=np.int64)
-        parts = [
-            self._nearest_chunk(centres[lo:hi], radius, max_nn)
-            for lo, hi in _chunks(len(centres), max(1, _CHUNK_ENTRIES // max_nn))
-        ]
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+        chunk = max(1, _CHUNK_ENTRIES // max(1, max_nn))
+        if len(centres) <= chunk:
+            return self._nearest(centres, radius, max_nn, rows)
+        return np.concatenate(
+            [
+                self._nearest(centres[lo:hi], radius, max_nn, None if rows is None else rows[lo:hi])
+                for lo, hi in _chunks(len(centres), chunk)
+            ]
+        )
 
-    def _nearest_chunk(self, centres: np.ndarray, radius: float, max_nn: int) -> np.ndarray:
-        ok = np.isfinite(centres).all(axis=1)
-        if not ok.all():
-            out = np.full((len(centres), max_nn), -1, dtype=np.int64)
-            if ok.any():
-                out[ok] = self._nearest_chunk(centres[ok], radius, max_nn)
-            return out
-        # distance_upper_bound is exclusive, like the paper's ||p_j - p_i|| < r. As many threads as torch has: a
-        # worker given a share of the cores (cli/cluster.py) keeps to it in the search too.
-        _, found = self._tree.query(centres, k=max_nn, distance_upper_bound=radius, workers=torch.get_num_threads())
-        return self._to_original[found.reshape(-1, max_nn)]
+    def pool_normals(
+        self, rows: np.ndarray, radius: float, max_nn: int, gap: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`kernels.pool_normals` of the pools `nearest` gives around the cloud's `rows`, searched and summed in one
+        compiled loop (`fused_pools.tree_normals`): unit normals, ascending eigenvalues and validity, NaN where
+        the row is not finite."""
+        from .fused_pools import tree_normals
+
+        rows = np.asarray(rows, dtype=np.int64)
+        return tree_normals(self._tree, self.points[rows], self._tree_row[rows], radius, max_nn, gap)
+
+    def _nearest(self, centres: np.ndarray, radius: float, max_nn: int, rows: np.ndarray | None) -> np.ndarray:
+        tree_rows = None if rows is None else self._tree_row[np.asarray(rows, dtype=np.int64)]
+        return self._tree.nearest(centres, radius, max_nn, tree_rows)
 
 
 def _chunks(n: int, size: int) -> Iterator[tuple[int, int]]:

@@ -56,7 +56,7 @@ def open_search(
 
 
 class _TreeSearch(PoolSearch):
-    """The nearest `size` points inside the ball, from a cKDTree on the CPU."""
+    """The nearest `size` points inside the ball, from the compiled KD-tree on the CPU (kdtree.py)."""
 
     name = "kdtree"
 
@@ -64,7 +64,8 @@ class _TreeSearch(PoolSearch):
         self.index, self.device, self.finite = index, device, index.finite
 
     def pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
-        return torch.from_numpy(self.index.nearest(self.index.points[rows.cpu().numpy()], radius, size)).to(self.device)
+        rows = rows.cpu().numpy()
+        return torch.from_numpy(self.index.nearest(self.index.points[rows], radius, size, rows)).to(self.device)
 
 
 class _DeviceSearch(PoolSearch):

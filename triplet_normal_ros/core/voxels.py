@@ -1,6 +1,6 @@
 """Ball neighbourhoods of an unorganized cloud from sorted cell lists, in torch, on the points' device.
 
-On a GPU the cKDTree of `neighbours.py` is a per-cloud CPU stage that caps throughput: the cloud goes to the host,
+On a GPU the KD-tree of `neighbours.py` is a per-cloud CPU stage that caps throughput: the cloud goes to the host,
 the tree is built and queried there, and the indices come back. `VoxelIndex` answers the same question on the device
 with the same contract as `NeighbourIndex.ball`: the nearest `max_nn` points strictly inside the ball, sorted by
 distance, indices into the original cloud, -1 padded; non-finite points are never returned and non-finite queries get
