@@ -6,8 +6,11 @@ rad², sign-invariant, over every valid pixel, a missing normal counted as 90°.
 FALS) are timed when they import (evaluation/anchors.py; neither is a dependency). Prints one markdown table.
 
 Run: .venv/bin/python docs/tools/frame_targets.py   (about 5 minutes on 2 quiet CPU cores)
+     .venv/bin/python docs/tools/frame_targets.py --only "k = 30"   (the anchors and the package rows whose label
+     holds the text)
 """
 
+import argparse
 import statistics
 import time
 
@@ -64,12 +67,16 @@ def anchor_row(anchor: anchors.Anchor, frames: list) -> tuple[float, float]:
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--only", default="", help="time only the package rows whose label holds this text")
+    only = parser.parse_args().only
     frames = [depth_frame(seed) for seed in SEEDS]
     found, skipped = anchors.available_anchors()
     if skipped:
         print(anchors.skip_line(skipped))
     rows = [(a.name, *anchor_row(a, frames), 0.0, "anchor") for a in found]
-    rows += [(label, *package_row(options, organized, frames)) for label, (options, organized) in METHODS.items()]
+    chosen = {label: row for label, row in METHODS.items() if only in label}
+    rows += [(label, *package_row(options, organized, frames)) for label, (options, organized) in chosen.items()]
     base = next((r for r in rows if r[0] == anchors.BASE_ANCHOR), None)
     print("| method | path | s per frame | × Open3D KNN30's time | MSAE | × Open3D KNN30's MSAE | network share |")
     print("| --- | --- | ---: | ---: | ---: | ---: | ---: |")
