@@ -21,7 +21,7 @@ from triplet_normal_ros.core.conventions import (
 )
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.fused import CompiledImage
-from triplet_normal_ros.core.hybrid import survey_and_cue
+from triplet_normal_ros.core.hybrid import survey_and_cue, window_z
 from triplet_normal_ros.core.organized import range_pitch
 from triplet_normal_ros.core.windows import MomentImage
 from triplet_normal_ros.evaluation.metrics import msae
@@ -95,7 +95,7 @@ def test_the_compiled_survey_is_the_torch_survey(name: str) -> None:
     # real frames (9 of 271k Kinect pixels differ by up to 0.4 %); the gate must still open on exactly the same pixels
     off = (cue.z[valid] - torch_cue.z[valid]).abs() > 1e-6 * (1 + torch_cue.z[valid].abs())
     assert int(off.sum()) <= 1e-4 * int(valid.sum())
-    threshold = (3 * HYBRID_GATE) ** 0.5
+    threshold = window_z(HYBRID_GATE)
     gates = [(c.z > threshold) & (c.bend > HYBRID_BEND) & valid for c in (torch_cue, cue)]
     assert torch.equal(gates[0], gates[1])
 

@@ -30,9 +30,9 @@ HYBRID_GATE = 10.0
 HYBRID_BEND = 0.03
 #: On an organized cloud hybrid's survey is the integral-image window (core/integral.py), and its gate reads the
 #: window's parts (`MomentImage.structure`) instead of a quadric over a pool: the network answers where a part's
-#: centroid sits off the survey's plane by more than sqrt(3 × gate) standard errors (an F with three numerator degrees
-#: of freedom is the mean of three squared z scores) and by more than bend radii. Checked in docs/RESULTS.md
-#: (docs/tools/window_gate_study.py, on seeds eval does not score).
+#: centroid sits off the survey's plane by more than sqrt(gate) standard errors (`hybrid.window_z`) and by more than
+#: bend radii. Chosen in docs/RESULTS.md (docs/tools/window_gate_study.py and lattice_study.py, on seeds eval does not
+#: score).
 #: Neighbour searches: 'kdtree' (CPU), 'grid' (organized clouds only; falls back to the KD-tree), 'voxel' (sorted cell
 #: lists on the device, any cloud), 'window' (organized clouds, pca only: integral-image windows, O(1) per pixel; falls
 #: back like 'grid'), 'auto' (the window for whole-ball pca on an organized cloud; otherwise on CUDA the grid for
