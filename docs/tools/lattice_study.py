@@ -6,7 +6,10 @@ from seed 100 (eval scores seed 0). Each estimate is the whole frame, as the nod
 a missing normal as 90°) over every valid pixel and over those within the radius of another face. Seconds are the sum
 over the frames' estimates.
 
-Run: .venv/bin/python docs/tools/lattice_study.py [--checkpoint lite] [--strides 1,2] [--agree 10]
+`--z` replaces the window gate's z threshold (`hybrid.window_z`, sqrt(gate)) by each given value in turn, the bend
+unchanged.
+
+Run: .venv/bin/python docs/tools/lattice_study.py [--checkpoint lite] [--strides 1,2] [--agree 10] [--z 5.48,3.16]
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ import time
 
 import numpy as np
 
-from triplet_normal_ros.core import lattice
+from triplet_normal_ros.core import hybrid, lattice
 from triplet_normal_ros.core.conventions import DEPTH_RADIUS
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.evaluation.metrics import angles_rad
@@ -59,7 +62,17 @@ def main() -> None:
     parser.add_argument(
         "--agree", default=str(lattice.AGREE_DEGREES), help="agreement angles in degrees, comma-separated"
     )
+    parser.add_argument("--z", default="", help="window gate z thresholds, comma-separated (default: the rule)")
     args = parser.parse_args()
+    for z in [float(z) for z in args.z.split(",")] if args.z else [None]:
+        if z is not None:
+            hybrid.window_z = lambda _gate, z=z: z
+            print(f"\nwindow gate: z > {z:g}")
+        report(args)
+
+
+def report(args: argparse.Namespace) -> None:
+    """The study's two tables (fold scenes, room frames) for the lattice variants `args` names."""
     pairs = variants([int(s) for s in args.strides.split(",")], [float(a) for a in args.agree.split(",")])
     estimator = NormalEstimator("hybrid", radius=DEPTH_RADIUS, checkpoint=args.checkpoint, device="cpu")
     warm = depth_frames(1, seed=SEED)[0]

@@ -1,12 +1,13 @@
-"""Time the neighbour searches for unorganized clouds: `VoxelIndex` (sorted cell lists in torch) against the cKDTree
-`NeighbourIndex`, on `bench`'s noisy 100k-point torus at its radius (5 % of the diagonal), every point a query.
+"""Time the neighbour searches for unorganized clouds: `VoxelIndex` (sorted cell lists in torch) against the KD-tree
+`NeighbourIndex` (kdtree.py), on `bench`'s noisy 100k-point torus at its radius (5 % of the diagonal), every point a
+query.
 
 Run from the repository root: .venv/bin/python docs/tools/voxel_vs_kdtree.py [--points N] [--threads T] [--rounds R]
 
 µs per query include building the index once per cloud and answer in the estimator's chunks of queries (CHUNK), as
 `NormalEstimator.estimate` does. The cell lists exist for the GPU, where the KD-tree is a CPU stage between device
-steps; on a CPU this measures what 'voxel' costs there. `--threads` sets torch's threads; the KD-tree queries with
-scipy's workers=-1 as NeighbourIndex does, so pin the process (taskset -c 0) for a one-core comparison. Rounds
+steps; on a CPU this measures what 'voxel' costs there. `--threads` sets torch's threads, which both searches use
+(`--threads 1` for a one-core comparison). Rounds
 alternate between the two, so load from other jobs hits both alike; the best round is reported.
 """
 

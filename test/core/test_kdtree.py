@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from triplet_normal_ros.core.fused_pools import pool_normals, tree_normals
-from triplet_normal_ros.core.kdtree import LEAF_SIZE, KDTree
+from triplet_normal_ros.core.kdtree import LEAF_SIZE, KDTree, _nearest_one, scratch_for
 from triplet_normal_ros.core.kernels import EIGEN_GAP
 from triplet_normal_ros.core.neighbours import NeighbourIndex
 from triplet_normal_ros.simulation.depth_camera import depth_frame
@@ -99,15 +99,16 @@ def test_ids_name_the_answers() -> None:
     np.testing.assert_array_equal(found, np.where(expected >= 0, expected * 10 + 7, -1))
 
 
-def test_leaf_order_answers_what_the_callers_order_answers() -> None:
+@pytest.mark.parametrize("others", [False, True])
+def test_leaf_order_answers_in_the_callers_rows(others: bool) -> None:
     points = _clouds()["clustered"]
-    rng = np.random.default_rng(5)
-    rows = rng.permutation(len(points))[:900]
+    rows = np.random.default_rng(5).permutation(len(points))[:900]
     centres, named = points[rows].copy(), rows.copy()
-    named[::9] = -1  # centres that are not the tree's points: read from the centres given
-    centres[::9] += 0.01
-    tree = KDTree(points)
-    np.testing.assert_array_equal(tree.nearest(centres, 0.2, 25, named), tree.nearest(centres, 0.2, 25))
+    if others:  # centres that are not the tree's points, read from the centres given
+        named[::9] = -1
+        centres[::9] += 0.01
+    found = KDTree(points).nearest(centres, 0.2, 25, named)
+    np.testing.assert_array_equal(found, _brute_force(points, centres, 0.2, 25))
 
 
 def test_far_jumps_between_consecutive_centres_keep_the_answers_exact() -> None:
@@ -115,6 +116,18 @@ def test_far_jumps_between_consecutive_centres_keep_the_answers_exact() -> None:
     points = _clouds()["clustered"]
     centres = points[np.arange(0, 3500, 7)][np.random.default_rng(2).permutation(500)]
     np.testing.assert_array_equal(KDTree(points).nearest(centres, 0.5, 40), _brute_force(points, centres, 0.5, 40))
+
+
+def test_a_bound_too_tight_to_hold_k_points_is_searched_again_with_the_ball() -> None:
+    points = _clouds()["uniform"]
+    tree = KDTree(points)
+    scratch = scratch_for(20)
+    x, y, z = points[5]
+    scratch.last[:] = (x, y, z, 0.0)  # as if the previous centre sat here with all its k points at distance 0
+    count = _nearest_one(tree.points, tree.ids, tree.span, tree.box, tree.depth, x, y, z, 0.3**2, 20, scratch)
+    assert count == 20
+    found = tree.ids[scratch.best_pos[:count]]
+    np.testing.assert_array_equal(found, _brute_force(points, points[5:6], 0.3, 20)[0])
 
 
 def test_neighbour_index_maps_a_cloud_with_holes_back_to_its_rows() -> None:

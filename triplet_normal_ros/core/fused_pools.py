@@ -129,6 +129,8 @@ def tree_normals(
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _tree_pca(pts, ids, span, box, depth, centres, at, which, r2, k, gap, normal, eigvals, valid, lo, hi):
+    """`_pool_pca` of each query's nearest k (`kdtree._nearest_one`), its moments summed from the tree's own points
+    while the search has them in cache, for the queries at[lo:hi] into the rows which[lo:hi]."""
     scratch = scratch_for(k)
     cov = np.empty((3, 3))
     sums = np.empty(10)

@@ -124,11 +124,9 @@ def window_z(gate: float) -> float:
     """The window gate's z threshold for hybrid's `gate`: a part's centroid more than sqrt(gate) standard errors off the
     survey's plane (3.16 at the default 10), beside the bend it must also exceed.
 
-    On a plane the parts' largest z is about 1-3 whatever the noise, so the bend decides where the network answers;
-    the z only keeps noise-sized departures out. The F test's sqrt(3 × gate) (5.48) left folds that bend a window by
-    more than the bend but less than 5.5 standard errors to the survey. On frames eval never scores, sqrt(gate) with
-    the lattice's 25° agreement cut hybrid's error by 12 % on close-range fold scenes and 8-11 % on rooms, for about
-    the same network passes (docs/RESULTS.md, "The window gate, re-tuned with the lattice")."""
+    On a plane the parts' largest z is about 1-3 whatever the noise, so the bend decides where the network answers
+    and the z only keeps noise-sized departures out; a higher z leaves folds that bend a window by more than the bend
+    but by few standard errors to the survey (docs/RESULTS.md, "The window gate, re-tuned with the lattice")."""
     return gate**0.5
 
 

@@ -4,14 +4,14 @@ scipy's cKDTree answered these searches before; on a 640 × 480 depth frame at k
 Open3D's whole normal estimate (docs/RESULTS.md, "A compiled KD-tree"). This tree is a nanoflann-class search in numba:
 
 * **Layout.** A balanced tree of fixed depth, its nodes in heap order (children 2i + 1, 2i + 2), each split at the
-  median of its widest axis, every leaf holding LEAF_SIZE / 2 to LEAF_SIZE points. The points are copied in leaf
+  median of its widest axis, every leaf holding LEAF_SIZE / 2 to LEAF_SIZE points (a cloud of fewer is one leaf).
+  The points are copied in leaf
   order, so a leaf's points are contiguous in memory, and every node keeps its points' bounding box: a node is skipped
   when its box lies farther than the current k-th distance, which prunes tighter than the split plane alone.
 * **Query.** Depth first, nearer child first, one small stack per query. The best k are kept as a sorted list: a
   candidate is inserted by shifting the farther ones up. The leaves come nearest first, so most insertions shift
   little, and the list needs no final sort; at k = 30 to 512 this measured as fast as a heap or faster.
-* **Ties.** Equal distances order by the point's index, so an answer is one exact set whatever the traversal, as
-  `voxels.VoxelIndex` orders them.
+* **Ties.** Equal distances order by the point's id, so an answer is one exact set whatever the traversal.
 
 Queries run in bands on `fused._bands`'s threads (torch's thread count, the GIL released), for the reasons fused.py
 gives. test/core/test_kdtree.py checks the answers against scipy's cKDTree, and the speed is in RESULTS.
@@ -32,7 +32,8 @@ from .fused import _bands
 LEAF_SIZE = 16
 #: Levels split on one thread before the subtrees below them split in parallel (8 subtrees: 4 per thread on 2).
 TOP_LEVELS = 3
-#: Deeper than any tree of this layout can be (2^40 leaves): the query's stack bound.
+#: The query's stack bound: the stack holds at most one node per level below the one being visited, and no tree of
+#: this layout is 64 levels deep.
 _STACK = 64
 
 
@@ -118,23 +119,23 @@ def _build(points: np.ndarray, depth: int) -> tuple[np.ndarray, np.ndarray, np.n
     span, box = np.empty((nodes, 2), dtype=np.int64), np.empty((nodes, 6))
     span[0] = 0, n
     top = min(TOP_LEVELS, depth)
-    _split_levels(pts, order, span, box, 0, top, 0, 1)
-    _bands(_split_levels, 1 << top, pts, order, span, box, top, depth, pieces=4)
-    _unite(box, depth)
+    _split_levels(pts, order, span, box, 0, top, depth, 0, 1)
+    _bands(_split_levels, 1 << top, pts, order, span, box, top, depth + 1, depth, pieces=4)
     return pts, order, span, box
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _split_levels(pts, order, span, box, first, last, lo, hi):
-    """Split the nodes of levels [first, last) below the level-`first` nodes lo..hi - 1 (counted along the level) at
-    the median of their widest axis; at the last level, the leaves' boxes (a level-`last` node is then a leaf)."""
-    for level in range(first, last + 1):
+def _split_levels(pts, order, span, box, first, stop, depth, lo, hi):
+    """Box the nodes of levels [first, stop) below the level-`first` nodes lo..hi - 1 (counted along the level), and
+    split each one above the leaves (level `depth`) at the median of its widest axis. Bands of level-`first` nodes own
+    disjoint subtrees, point ranges and node rows, so threads can split them at once."""
+    for level in range(first, stop):
         scale = 1 << (level - first)
         for place in range(lo * scale, hi * scale):
             node = (1 << level) - 1 + place
             start, end = span[node, 0], span[node, 1]
             _bounds(pts, start, end, box, node)
-            if level == last:
+            if level == depth:
                 continue
             axis = 0
             for a in range(1, 3):
@@ -144,16 +145,6 @@ def _split_levels(pts, order, span, box, first, last, lo, hi):
             _select(pts, order, start, end, mid, axis)
             span[2 * node + 1, 0], span[2 * node + 1, 1] = start, mid
             span[2 * node + 2, 0], span[2 * node + 2, 1] = mid, end
-
-
-@njit(cache=True, nogil=True)
-def _unite(box, depth):
-    """Each internal node's box as the union of its children's (the same box its points had before the splits)."""
-    for node in range((1 << depth) - 2, -1, -1):
-        a, b = 2 * node + 1, 2 * node + 2
-        for d in range(3):
-            box[node, d] = min(box[a, d], box[b, d])
-            box[node, 3 + d] = max(box[a, 3 + d], box[b, 3 + d])
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -206,8 +197,7 @@ def _gap(low, high, v):
 
 @njit(cache=True, nogil=True, inline="always")
 def _box_distance(box, node, x, y, z):
-    """Squared distance from (x, y, z) to the node's box (0 inside it). No node is empty: a leaf holds at least
-    LEAF_SIZE / 2 points."""
+    """Squared distance from (x, y, z) to the node's box (0 inside it)."""
     gaps = _gap(box[node, 0], box[node, 3], x) + _gap(box[node, 1], box[node, 4], y)
     return gaps + _gap(box[node, 2], box[node, 5], z)
 

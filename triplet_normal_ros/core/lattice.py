@@ -7,7 +7,8 @@ that bracket it (up to four, at most STRIDE - 1 pixels away on each axis). Where
 every answer lies within AGREE_DEGREES of their sign-aligned mean, the pixel takes that mean; where they disagree (it
 sits across a fold from some of them), or fewer than two answered (a band one pixel wide), the network answers it on
 its own pool. The mean of agreeing answers also averages the network's own noise: on frames eval never scores this is
-as accurate as the network on every gated pixel, at 40 % of its passes (docs/RESULTS.md, "The network on a lattice").
+as accurate as the network on every gated pixel, at 40 % of its passes at 10° and a fifth fewer at 25° (docs/RESULTS.md,
+"The network on a lattice").
 
 A pixel that takes its neighbours' mean never opens its own pool, so where that pool would have given no answer (it
 lies on one scan line) the pixel has the neighbours' network answer instead of the survey's; both are planes its
@@ -29,7 +30,7 @@ import torch
 STRIDE = 2
 #: Lattice answers agree when each lies within this angle of their mean. Chosen on fold and room frames of seeds eval
 #: never scores (docs/RESULTS.md): from 5° to 25° hybrid's MSAE moved by about 1 %, and 25° runs the network on a fifth
-#: fewer pixels than 10°, which pays for the window gate's lower z (`hybrid.window_z`).
+#: fewer pixels than 10°, which buys back most of what the window gate's lower z (`hybrid.window_z`) adds.
 AGREE_DEGREES = 25.0
 
 

@@ -64,6 +64,7 @@ class NeighbourIndex:
         return tree_normals(self._tree, self.points[rows], self._tree_row[rows], radius, max_nn, gap)
 
     def _nearest(self, centres: np.ndarray, radius: float, max_nn: int, rows: np.ndarray | None) -> np.ndarray:
+        """One chunk of `nearest`: the cloud's rows become the tree's (-1 where not finite, so not the tree's)."""
         tree_rows = None if rows is None else self._tree_row[np.asarray(rows, dtype=np.int64)]
         return self._tree.nearest(centres, radius, max_nn, tree_rows)
 

@@ -86,7 +86,7 @@ class GridIndex:
 
     def _sample(self, rows: torch.Tensor, offsets: torch.Tensor, steps: torch.Tensor, radius: float) -> torch.Tensor:
         """Cloud indices of the lattice `offsets` × per-query `steps` (row, column) around each query, inside the
-        ball, else -1. Strict `<`, like the KD-tree's distance_upper_bound; NaN points compare False."""
+        ball, else -1. Strict `<`, like the KD-tree's ball; NaN points compare False."""
         step = steps.to(torch.int64)
         r = (rows // self.width).unsqueeze(1) + offsets[:, 0].unsqueeze(0) * step[:, :1]
         c = (rows % self.width).unsqueeze(1) + offsets[:, 1].unsqueeze(0) * step[:, 1:]
