@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from numba import njit
 
+from . import organized
 from .conventions import MIN_NEIGHBOURS
 from .eigen import DEGENERATE_CROSS
 from .frames import COLLINEAR_RATIO
@@ -95,7 +96,7 @@ def warm() -> None:
     the node's start-up probe calls this whatever its method, and a reload to another method finds them ready."""
     v, u = np.mgrid[0:12, 0:16].astype(np.float64)
     grid = np.stack(((u - 8) / 10, (v - 6) / 10, np.ones_like(u)), axis=-1)
-    pitch = [ray_pitch(grid, axis, 1 << 16, 4.0) for axis in (0, 1)]
+    pitch = [organized.pitch_from_chords(chord_stats(grid, axis, 1 << 16)).numpy() for axis in (0, 1)]
     fit = window_pca(grid, pitch[0], pitch[1], 0.3, 0.1)
     survey(fit["table"], fit["offset"], fit)
     window_pca_on_slope(grid, fit, pitch[0], pitch[1], 0.3, np.nan_to_num(fit["normal"]))
@@ -158,12 +159,32 @@ def window_pca_on_slope(
         *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
         pieces=4,
     )  # fmt: skip
-    fit["mean"][changed] += out["offset"]
-    kept = ~changed
-    for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "reach"):
-        fit[name][kept] = out[name][kept]
-    fit["box"][:, kept] = out["box"][:, kept]
+    names = ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")
+    _bands(
+        _keep_first, n, changed, out["offset"], *(out[name] for name in names), *(fit[name] for name in names), pieces=4
+    )
     return fit
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _keep_first(
+    changed, offset, normal, eigvals, count, valid, mean, cov, box, reach,
+    new_normal, new_eigvals, new_count, new_valid, new_mean, new_cov, new_box, new_reach, lo, hi,
+):  # fmt: skip
+    """The second fit's rows lo..hi finished: the first fit's where the window did not change, else the offset added
+    to the new mean (one pass, where boolean-mask copies of eight arrays took a few times as long)."""
+    for i in range(lo, hi):
+        if changed[i]:
+            for k in range(3):
+                new_mean[i, k] += offset[k]
+            continue
+        for k in range(3):
+            new_normal[i, k], new_eigvals[i, k], new_mean[i, k] = normal[i, k], eigvals[i, k], mean[i, k]
+        for k in range(6):
+            new_cov[i, k] = cov[i, k]
+        for k in range(4):
+            new_box[k, i] = box[k, i]
+        new_count[i], new_valid[i], new_reach[i] = count[i], valid[i], reach[i]
 
 
 def _empty_fit(n: int) -> dict[str, np.ndarray]:
@@ -546,29 +567,29 @@ def _round_or_zero(x):
     return 0.0 if np.isnan(x) else np.round(x)
 
 
-def ray_pitch(grid: np.ndarray, axis: int, samples: int, spread: float) -> np.ndarray | None:
-    """`organized.ray_pitch` compiled: the median angle between adjacent rays along `axis` per pixel line (float32),
-    or None when fewer than 16 pairs are valid or their 5-95 % spread exceeds `spread`."""
+def chord_stats(grid: np.ndarray, axis: int, samples: int) -> tuple[float, float, torch.Tensor] | None:
+    """`organized.chord_stats` compiled: the 5 % and 95 % quantiles of the squared chords between adjacent unit rays
+    along `axis` (on at most `samples` of them) and each pixel line's lower median, or None when fewer than 16 pairs
+    have a ray at both ends."""
     grid = np.ascontiguousarray(grid, dtype=np.float64)
+    rays = np.empty_like(grid)
+    _bands(_unit_rays, grid.shape[0], grid, rays)
     if axis == 0:
-        angle = np.empty((grid.shape[0] - 1, grid.shape[1]))
-        _bands(_angles, grid.shape[0] - 1, grid, angle, 1, 0)
+        chord2 = np.empty((grid.shape[0] - 1, grid.shape[1]))
+        _bands(_chords, grid.shape[0] - 1, rays, chord2, 1, 0)
     else:
-        angle = np.empty((grid.shape[0], grid.shape[1] - 1))
-        _bands(_angles, grid.shape[0], grid, angle, 0, 1)
-    valid = angle[np.isfinite(angle)]
+        chord2 = np.empty((grid.shape[0], grid.shape[1] - 1))
+        _bands(_chords, grid.shape[0], rays, chord2, 0, 1)
+    valid = chord2[np.isfinite(chord2)]
     if len(valid) < 16:
         return None
     if len(valid) > samples:
         valid = valid[np.round(np.linspace(0, len(valid) - 1, samples)).astype(np.int64)]
     low, high = _quantiles(valid, 0.05, 0.95)
-    if not (low > 0 and high / low <= spread):
-        return None
-    lines = angle if axis == 0 else np.ascontiguousarray(angle.T)  # one pixel line per row of `lines`
+    lines = chord2 if axis == 0 else np.ascontiguousarray(chord2.T)  # one pixel line per row of `lines`
     per_line = np.empty(len(lines))
     _bands(_lower_medians, len(lines), lines, per_line)
-    per_line = np.where(np.isfinite(per_line) & (per_line > 0), per_line, low)
-    return np.concatenate([per_line, per_line[-1:]]).astype(np.float32)
+    return low, high, torch.from_numpy(per_line)
 
 
 def _quantiles(values: np.ndarray, *qs: float) -> list[float]:
@@ -586,21 +607,29 @@ def _quantiles(values: np.ndarray, *qs: float) -> list[float]:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _angles(grid, out, step_row, step_col, lo, hi):
-    """The angle between the rays of each pixel and its neighbour (step_row, step_col) further on, as torch's
-    cosine_similarity and atan2 give it (NaN where either is missing)."""
+def _unit_rays(grid, rays, lo, hi):
+    """`organized.unit_rays`: each point's direction from the origin, NaN where there is no point or it is the
+    origin."""
+    for r in range(lo, hi):
+        for c in range(grid.shape[1]):
+            x, y, z = grid[r, c, 0], grid[r, c, 1], grid[r, c, 2]
+            length = math.sqrt(x * x + y * y + z * z)
+            if length > 0:
+                rays[r, c, 0], rays[r, c, 1], rays[r, c, 2] = x / length, y / length, z / length
+            else:
+                rays[r, c, 0] = rays[r, c, 1] = rays[r, c, 2] = np.nan
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _chords(rays, out, step_row, step_col, lo, hi):
+    """The squared chord between each pixel's unit ray and its neighbour's (step_row, step_col) further on (NaN where
+    either is missing)."""
     for r in range(lo, hi):
         for c in range(out.shape[1]):
-            ax, ay, az = grid[r, c, 0], grid[r, c, 1], grid[r, c, 2]
-            bx, by, bz = (
-                grid[r + step_row, c + step_col, 0],
-                grid[r + step_row, c + step_col, 1],
-                grid[r + step_row, c + step_col, 2],
-            )
-            na = max(math.sqrt(ax * ax + ay * ay + az * az), 1e-8)
-            nb = max(math.sqrt(bx * bx + by * by + bz * bz), 1e-8)
-            cos = (ax / na) * (bx / nb) + (ay / na) * (by / nb) + (az / na) * (bz / nb)
-            out[r, c] = math.atan2(math.sqrt(max(1 - cos * cos, 0.0)), cos)
+            dx = rays[r + step_row, c + step_col, 0] - rays[r, c, 0]
+            dy = rays[r + step_row, c + step_col, 1] - rays[r, c, 1]
+            dz = rays[r + step_row, c + step_col, 2] - rays[r, c, 2]
+            out[r, c] = dx * dx + dy * dy + dz * dz
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

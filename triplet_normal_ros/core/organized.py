@@ -149,13 +149,13 @@ def compiled(device_type: str) -> bool:
 
 
 def _pitch(grid: torch.Tensor, axis: int) -> torch.Tensor | None:
-    """`ray_pitch`, by the compiled kernel on a CPU (the same medians: test_fused.py), by torch on a GPU."""
+    """`ray_pitch`, its chords measured by the compiled kernel on a CPU (the same numbers: test_fused.py), by torch on
+    a GPU."""
     if not compiled(grid.device.type):
         return ray_pitch(grid, axis)
     from . import fused
 
-    pitch = fused.ray_pitch(grid.numpy(), axis, _PITCH_SAMPLES, MAX_PITCH_SPREAD)
-    return None if pitch is None else torch.from_numpy(pitch)
+    return pitch_from_chords(fused.chord_stats(grid.numpy(), axis, _PITCH_SAMPLES))
 
 
 def range_pitch(cloud: torch.Tensor, shape: tuple[int, int]) -> RangePitch | None:
@@ -172,9 +172,7 @@ def scan_line_breaks(grid: torch.Tensor, axis: int) -> float | None:
     sensor order has many. None when fewer than 16 steps have a ray at both ends: too few to tell."""
     across = 1 - axis  # the lines: a sample of them shows a layout's breaks, which repeat along every line
     lines = torch.linspace(0, grid.shape[across] - 1, min(grid.shape[across], _CHECKED_LINES), device=grid.device)
-    points = grid.index_select(across, lines.round().long().unique()).to(torch.float64)
-    length = points.norm(dim=-1, keepdim=True)
-    rays = torch.where(length > 0, points / length, torch.nan)  # a point at the origin has no ray
+    rays = unit_rays(grid.index_select(across, lines.round().long().unique()))
     a, b = rays.narrow(axis, 0, rays.shape[axis] - 1), rays.narrow(axis, 1, rays.shape[axis] - 1)
     step = b - a
     angle = 2 * torch.asin((step.norm(dim=-1) / 2).clamp(max=1.0))  # NaN where either ray is missing
@@ -194,19 +192,53 @@ def ray_pitch(grid: torch.Tensor, axis: int) -> torch.Tensor | None:
     """The angle between adjacent pixel rays along `axis` (1: columns, 0: rows), per column (or per row): the median
     over the image, which follows a pinhole's shrinking pitch off-axis. None when the angles do not look like one
     sensor's (too few valid pairs, or a spread beyond MAX_PITCH_SPREAD): the cloud is not in its sensor's frame."""
-    a = grid.narrow(axis, 0, grid.shape[axis] - 1).to(torch.float64)
-    b = grid.narrow(axis, 1, grid.shape[axis] - 1).to(torch.float64)
-    cos = torch.nn.functional.cosine_similarity(a, b, dim=-1)
-    angle = torch.atan2(torch.sqrt((1 - cos * cos).clamp_min(0)), cos)  # (H, W-1) or (H-1, W); NaN where invalid
-    valid = angle[torch.isfinite(angle)]
+    return pitch_from_chords(chord_stats(grid, axis))
+
+
+#: (5 % and 95 % quantiles over every adjacent pair, the lower median per pixel line), as squared chords, or None.
+ChordStats = tuple[float, float, torch.Tensor] | None
+
+
+def chord_stats(grid: torch.Tensor, axis: int, samples: int = _PITCH_SAMPLES) -> ChordStats:
+    """The statistics `ray_pitch` reads, of the squared chords |a - b|² between adjacent unit rays along `axis`.
+
+    A chord is monotone in the angle (2·asin(chord / 2)), so a median of chords is the chord of the median angle, and
+    only the few statistics are turned into angles: per pair that costs three products instead of an arctangent.
+    None when fewer than 16 pairs have a ray at both ends."""
+    rays = unit_rays(grid)
+    step = rays.narrow(axis, 1, rays.shape[axis] - 1) - rays.narrow(axis, 0, rays.shape[axis] - 1)
+    chord2 = step[..., 0] * step[..., 0] + step[..., 1] * step[..., 1] + step[..., 2] * step[..., 2]
+    valid = chord2[torch.isfinite(chord2)]
     if len(valid) < 16:
         return None
-    if len(valid) > _PITCH_SAMPLES:
-        at = torch.linspace(0, len(valid) - 1, _PITCH_SAMPLES, dtype=torch.float64, device=valid.device)
+    if len(valid) > samples:
+        at = torch.linspace(0, len(valid) - 1, samples, dtype=torch.float64, device=valid.device)
         valid = valid[at.round().long()]
     low, high = torch.quantile(valid, torch.tensor([0.05, 0.95], dtype=valid.dtype, device=valid.device)).tolist()
+    return low, high, torch.nanmedian(chord2, dim=1 - axis).values  # one value per pixel line across `axis`
+
+
+def unit_rays(grid: torch.Tensor) -> torch.Tensor:
+    """Each point's direction from the origin (float64), NaN where there is no point or it sits at the origin."""
+    points = grid.to(torch.float64)
+    x, y, z = points.unbind(dim=-1)
+    length = torch.sqrt(x * x + y * y + z * z).unsqueeze(-1)
+    return torch.where(length > 0, points / length, torch.nan)
+
+
+def chord_angle(chord2: torch.Tensor) -> torch.Tensor:
+    """The angle between two unit rays whose squared chord is `chord2`."""
+    return 2 * torch.asin((chord2.sqrt() / 2).clamp(max=1.0))
+
+
+def pitch_from_chords(stats: ChordStats) -> torch.Tensor | None:
+    """The per-line pitch (float32, one more than the lines: the last pixel line reuses its neighbour's) from
+    `chord_stats`, or None when the angles' 5-95 % spread is not one sensor's."""
+    if stats is None:
+        return None
+    low, high = chord_angle(torch.tensor(stats[:2], dtype=torch.float64)).tolist()
     if not (low > 0 and high / low <= MAX_PITCH_SPREAD):
         return None
-    per_line = torch.nanmedian(angle, dim=1 - axis).values  # one value per pixel line across `axis`
+    per_line = chord_angle(stats[2].to(torch.float64))
     per_line = torch.where(torch.isfinite(per_line) & (per_line > 0), per_line, low)
-    return torch.cat([per_line, per_line[-1:]]).to(torch.float32)  # the last pixel line reuses its neighbour's
+    return torch.cat([per_line, per_line[-1:]]).to(torch.float32)
