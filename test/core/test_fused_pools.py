@@ -1,6 +1,6 @@
 """The compiled patch builder (`fused_pools.py`) against its torch reference (`patches.build_patches`), pool by
 pool: real Kinect pools from the KD-tree, simulated depth pools beside holes and edges, pools smaller than k and
-too small for a plane, tiles that name their points, and a scale head's plane fits."""
+too small for a plane, and tiles that name their points (a scale head's plane fits: test_fused_scales.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ import pytest
 import torch
 
 from triplet_normal_ros.core.conventions import DEPTH_RADIUS, POOL_FACTOR
-from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.neighbours import NeighbourIndex
 from triplet_normal_ros.core.patches import build_patches
 from triplet_normal_ros.ros.replay import FRAMES, load_frame
@@ -68,17 +67,6 @@ def test_a_tiles_point_names_draw_the_whole_clouds_points() -> None:
     _assert_same(compiled, reference)
     unnamed, _ = _both(cloud, rows, pool, seed=5)
     assert not torch.equal(unnamed.selected, compiled.selected)  # the names, not the rows, choose the points
-
-
-def test_a_scale_heads_plane_fits_match() -> None:
-    model = NormalEstimator("hybrid", radius=DEPTH_RADIUS, checkpoint="default").model
-    points = depth_frame(0).points.reshape(-1, 3).astype(np.float64)
-    cloud, rows, pool = _pools(points, 401, POOL_FACTOR * K)
-    options = {"scales": model.scales, "inlier_seeds": model.inlier_seeds}
-    compiled, reference = _both(cloud, rows, pool, **options)
-    _assert_same(compiled, reference)
-    torch.testing.assert_close(compiled.scales.normals, reference.scales.normals, rtol=0, atol=1e-9)
-    torch.testing.assert_close(compiled.scales.cues, reference.scales.cues, rtol=1e-6, atol=1e-9)
 
 
 def test_a_given_pca_frame_is_signed_and_used_as_the_torch_code_does() -> None:

@@ -86,7 +86,7 @@ def build_patches(
 
 
 def _compiled(cloud, centres, pool, radius, k, centre_ids, seed, scales, inlier_seeds, point_ids, pca) -> Patches:
-    """`build_patches` at inference on a CPU, by `fused_pools.build`."""
+    """`build_patches` at inference on a CPU, by `fused_pools.build`, and a scale head's fits by `fused_scales`."""
     from . import fused_pools
 
     out = fused_pools.build(
@@ -97,7 +97,11 @@ def _compiled(cloud, centres, pool, radius, k, centre_ids, seed, scales, inlier_
     t = {name: torch.from_numpy(value) for name, value in out.items()}
     fits = None
     if scales:
-        fits = scale_fits(t["local"], pool >= 0, t["rotation"], tuple(scales), tuple(inlier_seeds), POOL_FACTOR * k)
+        from . import fused_scales
+
+        fits = fused_scales.scale_fits(
+            t["local"], pool >= 0, t["rotation"], tuple(scales), tuple(inlier_seeds), POOL_FACTOR * k
+        )
     return Patches(
         points=t["points"],
         rotation=t["rotation"],

@@ -57,10 +57,11 @@ def measure(estimator: NormalEstimator, seed: int = 0) -> Throughput:
     cloud = probe_cloud(estimator.radius, seed)
     start = time.perf_counter()
     if estimator.device.type == "cpu":  # every compiled kernel, whichever the method: a reload finds them ready
-        from . import fused, fused_pools, kdtree
+        from . import fused, fused_pools, fused_scales, kdtree
 
         fused.warm()
         fused_pools.warm()
+        fused_scales.warm()
         kdtree.warm()
     estimator.estimate(cloud, shape=PROBE_SHAPE)  # warm-up: first-call allocations, thread pools
     warm_up = time.perf_counter() - start
