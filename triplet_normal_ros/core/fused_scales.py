@@ -14,45 +14,38 @@ scale's boundary: there each picks its own side (test/core/test_fused_scales.py 
 from __future__ import annotations
 
 import numpy as np
-import torch
 from numba import njit
 
 from .conventions import MIN_NEIGHBOURS
-from .fused import _bands
+from .fused import _bands, add_moments
 from .fused_pools import _moments_pca
 from .kernels import EIGEN_GAP
-from .scales import CUES_PER_SCALE, INLIER_BAND, INLIER_SLACK, INLIER_STEPS, ScaleFits
+from .scales import CUES_PER_SCALE, INLIER_BAND, INLIER_SLACK, INLIER_STEPS
 
 
-def scale_fits(
-    local: torch.Tensor,
-    mask: torch.Tensor,
-    rotation: torch.Tensor,
-    scales: tuple[int, ...],
-    seeds: tuple[int, ...] = (),
-    pool_size: int | None = None,
-) -> ScaleFits:
-    """`scales.scale_fits` on CPU tensors: the same arguments, the same candidates and cues."""
-    b, p = mask.shape
-    fits = len(scales) + 1 + len(seeds)
-    normals = np.empty((b, fits, 3), dtype=np.float32)
-    cues = np.empty((b, fits * CUES_PER_SCALE), dtype=np.float32)
+def fits(
+    local: np.ndarray, mask: np.ndarray, rotation: np.ndarray, scales: tuple[int, ...], seeds: tuple[int, ...],
+    pool_size: int,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """`scales.scale_fits`' candidate normals (B, fits, 3) and cues (B, fits × CUES_PER_SCALE), float32, of the pool
+    offsets `local` (B, P, 3) in radii with `mask` (B, P) and the patch frames `rotation` (B, 3, 3)."""
+    b = len(mask)
+    count = len(scales) + 1 + len(seeds)
+    normals = np.empty((b, count, 3), dtype=np.float32)
+    cues = np.empty((b, count * CUES_PER_SCALE), dtype=np.float32)
     _bands(
-        _patch_fits, b, np.ascontiguousarray(local.numpy()), np.ascontiguousarray(mask.numpy()),
-        np.ascontiguousarray(rotation.to(torch.float32).to(torch.float64).numpy()),
-        np.array(scales, dtype=np.int64), np.array(seeds, dtype=np.int64), float(pool_size or p), normals, cues,
-        pieces=4,
+        _patch_fits, b, np.ascontiguousarray(local, dtype=np.float64), np.ascontiguousarray(mask, dtype=np.bool_),
+        np.ascontiguousarray(rotation.astype(np.float32), dtype=np.float64), np.array(scales, dtype=np.int64),
+        np.array(seeds, dtype=np.int64), float(pool_size), normals, cues, pieces=4,
     )  # fmt: skip
-    return ScaleFits(torch.from_numpy(normals), torch.from_numpy(cues))
+    return normals, cues
 
 
 def warm() -> None:
     """Compile (or load from the cache) the kernel on two tiny pools, so that no cloud waits for it."""
     grid = np.mgrid[0:4, 0:4].reshape(2, -1).T / 4.0
     local = np.concatenate((grid, 0.05 * grid[:, :1] * grid[:, 1:]), axis=1)
-    local = torch.from_numpy(np.stack((local, local[::-1]))).to(torch.float32)
-    mask = torch.ones(2, 16, dtype=torch.bool)
-    scale_fits(local, mask, torch.eye(3).expand(2, 3, 3), (4, 8), (4,), 16)
+    fits(np.stack((local, local[::-1])), np.ones((2, 16), dtype=np.bool_), np.stack((np.eye(3),) * 2), (4, 8), (4,), 16)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -80,7 +73,7 @@ def _patch_fits(local, mask, rotation, scales, seeds, pool_size, normals, cues, 
             while taken < min(m, widest):
                 j = order[taken]
                 if valid[j]:
-                    _add(sums, points[j])
+                    add_moments(sums, points[j, 0], points[j, 1], points[j, 2])
                     reach2 = dist2[j]
                 taken += 1
             _finish(sums, reach2, float(m), cov, eigvals, world, frame, normals[b, slot], cues[b], slot)
@@ -95,7 +88,7 @@ def _patch_fits(local, mask, rotation, scales, seeds, pool_size, normals, cues, 
             for t in range(min(s, p)):
                 j = order[t]
                 if valid[j]:
-                    _add(sums, points[j])
+                    add_moments(sums, points[j, 0], points[j, 1], points[j, 2])
                     reach2 = dist2[j]
             for _ in range(INLIER_STEPS):
                 reach2 = _grow(points, valid, dist2, sums, grown_sums, reach2, cov, eigvals, world)
@@ -119,21 +112,6 @@ def _nearest_first(dist2, widest, order):
             n += 1
     chosen = order[:n].copy()
     order[:n] = chosen[np.argsort(dist2[chosen], kind="mergesort")]
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _add(sums, point):
-    x, y, z = point[0], point[1], point[2]
-    sums[0] += 1.0
-    sums[1] += x
-    sums[2] += y
-    sums[3] += z
-    sums[4] += x * x
-    sums[5] += x * y
-    sums[6] += x * z
-    sums[7] += y * y
-    sums[8] += y * z
-    sums[9] += z * z
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

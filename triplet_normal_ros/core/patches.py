@@ -81,12 +81,14 @@ def build_patches(
         pca_normal=frame[:, 2],
         curvature=surface_variation(eigvals),
         eigvals=eigvals,
-        scales=scale_fits(local, mask, rot, tuple(scales), tuple(inlier_seeds), POOL_FACTOR * k) if scales else None,
+        scales=scale_fits(local, mask, rot, tuple(scales), tuple(inlier_seeds), POOL_FACTOR * k, compiled)
+        if scales
+        else None,
     )
 
 
 def _compiled(cloud, centres, pool, radius, k, centre_ids, seed, scales, inlier_seeds, point_ids, pca) -> Patches:
-    """`build_patches` at inference on a CPU, by `fused_pools.build`, and a scale head's fits by `fused_scales`."""
+    """`build_patches` at inference on a CPU, by `fused_pools.build`."""
     from . import fused_pools
 
     out = fused_pools.build(
@@ -97,11 +99,7 @@ def _compiled(cloud, centres, pool, radius, k, centre_ids, seed, scales, inlier_
     t = {name: torch.from_numpy(value) for name, value in out.items()}
     fits = None
     if scales:
-        from . import fused_scales
-
-        fits = fused_scales.scale_fits(
-            t["local"], pool >= 0, t["rotation"], tuple(scales), tuple(inlier_seeds), POOL_FACTOR * k
-        )
+        fits = scale_fits(t["local"], pool >= 0, t["rotation"], tuple(scales), tuple(inlier_seeds), POOL_FACTOR * k)
     return Patches(
         points=t["points"],
         rotation=t["rotation"],
