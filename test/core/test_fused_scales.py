@@ -1,5 +1,5 @@
-"""The compiled scale-head fits (`fused_scales.py`) against their torch reference (`scales.scale_fits` with
-`compiled=False`), patch by patch: real Kinect pools, simulated pools beside holes and edges, pools smaller than the
+"""The compiled scale-head fits (`fused_scales.py`) against their torch reference (`scales.scale_fits`), patch by
+patch: real Kinect pools, simulated pools beside holes and edges, pools smaller than the
 widest scale and too small for a plane, and equal distances at a scale's boundary."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core import fused_pools, scales
+from triplet_normal_ros.core import fused_pools, fused_scales, scales
 from triplet_normal_ros.core.conventions import DEPTH_RADIUS, POOL_FACTOR
 from triplet_normal_ros.core.neighbours import NeighbourIndex
 from triplet_normal_ros.ros.replay import FRAMES, load_frame
@@ -29,11 +29,17 @@ def _patches(points: np.ndarray, every: int) -> tuple[torch.Tensor, torch.Tensor
     return torch.from_numpy(out["local"]), torch.from_numpy(pool >= 0), torch.from_numpy(out["rotation"])
 
 
+def _compiled(local, mask, rotation, fit_scales, seeds, pool_size) -> scales.ScaleFits:
+    """`fused_scales.fits` of these tensors, as the ScaleFits the torch reference returns."""
+    normals, cues = fused_scales.fits(local.numpy(), mask.numpy(), rotation.numpy(), fit_scales, seeds, pool_size)
+    return scales.ScaleFits(torch.from_numpy(normals), torch.from_numpy(cues))
+
+
 def _differences(local, mask, rotation) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Per patch and fit, the largest difference of the candidate normal and of the cues, compiled against torch,
     and whether the fit's nearest-m set is a choice among equally near points (`_tied`)."""
     args = (local, mask, rotation, SCALES, SEEDS, POOL_FACTOR * K)
-    compiled, reference = scales.scale_fits(*args), scales.scale_fits(*args, compiled=False)
+    compiled, reference = _compiled(*args), scales.scale_fits(*args)
     normals = (compiled.normals - reference.normals).abs().amax(dim=-1)
     cues = (compiled.cues - reference.cues).abs().view(len(mask), -1, scales.CUES_PER_SCALE).amax(dim=-1)
     return normals, cues, _tied(local, mask)
@@ -74,7 +80,7 @@ def test_pools_beside_holes_and_too_small_ones_give_the_torch_fits() -> None:
     mask[::11, 2:] = False  # too few for a plane: +z and zero cues
     mask[::13] = mask[::13].flip(1)  # padding first
     _assert_same_fits(*_differences(local, mask, rotation))
-    small = scales.scale_fits(local[::11], mask[::11], rotation[::11], SCALES, SEEDS, POOL_FACTOR * K)
+    small = _compiled(local[::11], mask[::11], rotation[::11], SCALES, SEEDS, POOL_FACTOR * K)
     assert torch.equal(small.normals, torch.tensor([0.0, 0.0, 1.0]).expand_as(small.normals))
     assert (small.cues.view(len(small.cues), -1, scales.CUES_PER_SCALE)[..., 3:] == 0).all()
 
@@ -89,13 +95,13 @@ def test_equal_distances_at_a_scales_boundary_go_by_pool_column() -> None:
     points = np.array([*near, *far])
     local = torch.from_numpy(points / 8.0).unsqueeze(0)
     mask, rotation = torch.ones(1, 24, dtype=torch.bool), torch.eye(3, dtype=torch.float64).unsqueeze(0)
-    compiled = scales.scale_fits(local, mask, rotation, (8,), (), 24)
+    compiled = _compiled(local, mask, rotation, (8,), (), 24)
     first = torch.zeros_like(mask)
     first[0, :8] = True
-    alone = scales.scale_fits(local, first, rotation, (8,), (), 24, compiled=False)  # the only eight it may choose
+    alone = scales.scale_fits(local, first, rotation, (8,), (), 24)  # the only eight it may choose
     torch.testing.assert_close(compiled.normals[:, 0], alone.normals[:, 0], rtol=0, atol=ROUNDOFF)
     torch.testing.assert_close(compiled.cues[:, :8], alone.cues[:, :8], rtol=0, atol=ROUNDOFF)
     last = torch.zeros_like(mask)
     last[0, 8:16] = True  # the other eight at that distance: another fit
-    other = scales.scale_fits(local, last, rotation, (8,), (), 24, compiled=False)
+    other = scales.scale_fits(local, last, rotation, (8,), (), 24)
     assert (compiled.cues[:, :8] - other.cues[:, :8]).abs().max() > 0.1

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from triplet_normal_ros.core.eigen import EIGEN_GAP
 from triplet_normal_ros.core.fused_pools import pool_normals, tree_normals
 from triplet_normal_ros.core.kdtree import LEAF_SIZE, KDTree, _nearest_one, scratch_for
-from triplet_normal_ros.core.kernels import EIGEN_GAP
 from triplet_normal_ros.core.neighbours import NeighbourIndex
 from triplet_normal_ros.simulation.depth_camera import depth_frame
 

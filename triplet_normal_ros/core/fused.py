@@ -26,7 +26,6 @@ import numpy as np
 import torch
 from numba import njit
 
-from . import organized
 from .conventions import MIN_NEIGHBOURS
 from .eigen import DEGENERATE_CROSS
 from .frames import COLLINEAR_RATIO
@@ -96,7 +95,9 @@ def warm() -> None:
     the node's start-up probe calls this whatever its method, and a reload to another method finds them ready."""
     v, u = np.mgrid[0:12, 0:16].astype(np.float64)
     grid = np.stack(((u - 8) / 10, (v - 6) / 10, np.ones_like(u)), axis=-1)
-    pitch = [organized.pitch_from_chords(chord_stats(grid, axis, 1 << 16)).numpy() for axis in (0, 1)]
+    for axis in (0, 1):
+        chord_stats(grid, axis, 1 << 16)
+    pitch = [np.full(12, 0.1, dtype=np.float32), np.full(16, 0.1, dtype=np.float32)]  # the grid's rays, 0.1 rad apart
     fit = window_pca(grid, pitch[0], pitch[1], 0.3, 0.1)
     survey(fit["table"], fit["offset"], fit)
     window_pca_on_slope(grid, fit, pitch[0], pitch[1], 0.3, np.nan_to_num(fit["normal"]))

@@ -2,7 +2,7 @@
 
 * **Pool PCA** (`kernels.pool_normals`, `pca`'s pools): the covariance of the offsets from the query point, the
   closed-form eigen-decomposition of `fused._eigen` (`eigen.smallest_eigenvector`'s), and LAPACK's eigh where the two
-  smallest eigenvalues nearly coincide (`kernels.EIGEN_GAP`), as the torch code does. Over the KD-tree's pools
+  smallest eigenvalues nearly coincide (`eigen.EIGEN_GAP`), as the torch code does. Over the KD-tree's pools
   (`tree_normals`) the search and the sums are one loop per point, and the pools are never stored.
 * **Inference patches** (`patches.build_patches`). A patch's k points are drawn by the hash of (centre, neighbour,
   seed), never by a generator, and the frame is the pool's own PCA frame, so each patch depends on its pool alone:

@@ -4,7 +4,7 @@ batched torch passes over every patch's whole pool.
 Per patch: the nearest `max(scales, seeds)` pool points, sorted once, give every nearest-m fit as a running sum of
 their moments; the whole pool is one more sum; each inlier fit refits its band INLIER_STEPS times. Every fit is the
 closed-form eigen-decomposition of `fused._eigen`, with LAPACK's eigh where the two smallest eigenvalues nearly
-coincide (`kernels.EIGEN_GAP`), in float64 from the float32 offsets the torch code fits.
+coincide (`eigen.EIGEN_GAP`), in float64 from the float32 offsets the torch code fits.
 
 The torch code stays the reference and runs on a GPU; it fits in float32 with LAPACK's eigh, so the two agree to
 float32 roundoff, except where a point sits on an inlier band's edge or two pool points are equally near at a
@@ -17,9 +17,9 @@ import numpy as np
 from numba import njit
 
 from .conventions import MIN_NEIGHBOURS
+from .eigen import EIGEN_GAP
 from .fused import _bands, add_moments
 from .fused_pools import _moments_pca
-from .kernels import EIGEN_GAP
 from .scales import CUES_PER_SCALE, INLIER_BAND, INLIER_SLACK, INLIER_STEPS
 
 

@@ -18,7 +18,7 @@ import torch
 
 from ..errors import EstimationCancelled
 from .conventions import MIN_NEIGHBOURS, POOL_FACTOR
-from .eigen import smallest_eigenvector
+from .eigen import EIGEN_GAP, smallest_eigenvector
 from .frames import masked_covariance, principal_frames, spans_plane, surface_variation
 from .model import TripletNormalNet
 from .patches import Patches, build_patches, to_world
@@ -32,11 +32,6 @@ PCA_CHUNK = 16384
 #: `tree_pca` stores no pools, so its chunks only bound the cancel latency (about 0.15 s on 2 cores); larger chunks
 #: also let more of the queries follow the tree's leaves (16,384: 1.04 × Open3D KNN30's time, 65,536: 0.91 ×).
 TREE_PCA_CHUNK = 65536
-
-#: `pool_normals` hands a pool to eigh when its two smallest eigenvalues lie closer than this fraction of the trace:
-#: there the closed form's normal drifts from eigh's (1e-12 at 1e-3 on a depth frame, growing as the gap closes), and
-#: at 0 (a line, coincident points, an isotropic blob) only eigh's choice of axis matches `pool_pca`'s.
-EIGEN_GAP = 1e-3
 
 #: A chunk kernel: (call, cloud, centres, pools, rows, radius) -> (normals, curvature) as numpy, NaN where unknown.
 Kernel = Callable[..., tuple[np.ndarray, np.ndarray]]

@@ -81,9 +81,7 @@ def build_patches(
         pca_normal=frame[:, 2],
         curvature=surface_variation(eigvals),
         eigvals=eigvals,
-        scales=scale_fits(local, mask, rot, tuple(scales), tuple(inlier_seeds), POOL_FACTOR * k, compiled)
-        if scales
-        else None,
+        scales=_scale_fits(local, mask, rot, tuple(scales), tuple(inlier_seeds), k, compiled) if scales else None,
     )
 
 
@@ -99,7 +97,7 @@ def _compiled(cloud, centres, pool, radius, k, centre_ids, seed, scales, inlier_
     t = {name: torch.from_numpy(value) for name, value in out.items()}
     fits = None
     if scales:
-        fits = scale_fits(t["local"], pool >= 0, t["rotation"], tuple(scales), tuple(inlier_seeds), POOL_FACTOR * k)
+        fits = _scale_fits(t["local"], pool >= 0, t["rotation"], tuple(scales), tuple(inlier_seeds), k, True)
     return Patches(
         points=t["points"],
         rotation=t["rotation"],
@@ -110,6 +108,19 @@ def _compiled(cloud, centres, pool, radius, k, centre_ids, seed, scales, inlier_
         eigvals=t["eigvals"],
         scales=fits,
     )
+
+
+def _scale_fits(local, mask, rotation, scales, seeds, k: int, compiled: bool) -> ScaleFits:
+    """`scales.scale_fits` of the pools behind k-point patches: by the compiled loop of `fused_scales.py` on a CPU
+    (the same fits to float32 roundoff), by that torch code on a GPU or with `compiled` False."""
+    if not (compiled and local.device.type == "cpu"):
+        return scale_fits(local, mask, rotation, scales, seeds, POOL_FACTOR * k)
+    from . import fused_scales
+
+    normals, cues = fused_scales.fits(
+        local.detach().numpy(), mask.numpy(), rotation.detach().numpy(), scales, seeds, POOL_FACTOR * k
+    )
+    return ScaleFits(torch.from_numpy(normals), torch.from_numpy(cues))
 
 
 def sample_columns(

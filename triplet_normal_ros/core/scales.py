@@ -57,7 +57,6 @@ def scale_fits(
     scales: tuple[int, ...],
     seeds: tuple[int, ...] = (),
     pool_size: int | None = None,
-    compiled: bool | None = None,
 ) -> ScaleFits:
     """PCA of the nearest m pool points for each m in `scales`, of the whole pool, and the inlier fits grown from the
     nearest s points for each s in `seeds`, all seen from the patch frame.
@@ -69,16 +68,9 @@ def scale_fits(
     KD-tree's nearest-512 pool that training sees. A scale short of m points fits what there is (its fill says so);
     one below 3 points, possible only in a pool that is invalid anyway, falls back to +z with zero cues.
 
-    On a CPU the compiled loop of `fused_scales.py` fits them (the same fits to float32 roundoff); `compiled=False`
-    keeps this torch code, its reference.
+    This is the reference, and what a GPU runs; on a CPU `patches.py` fits them with the compiled loop of
+    `fused_scales.py` (the same fits to float32 roundoff).
     """
-    if compiled is not False and local.device.type == "cpu":
-        from . import fused_scales
-
-        normals, cues = fused_scales.fits(
-            local.detach().numpy(), mask.numpy(), rotation.detach().numpy(), scales, seeds, pool_size or local.shape[1]
-        )
-        return ScaleFits(torch.from_numpy(normals), torch.from_numpy(cues))
     # float32 and batched matmuls: coordinates are in radii (|x| <= 1), so float32 leaves a normal error far below a
     # microradian, and the fits cost about a third of the float64 elementwise version (docs/RESULTS.md).
     local = torch.where(mask.unsqueeze(-1), local, 0.0).to(torch.float32)

@@ -1,0 +1,119 @@
+"""Where hybrid's window survey loses to the ball survey on fold scenes: MSAE split by what answered each pixel and by
+whether it lies within the radius of another face, on frames eval never scores.
+
+Frames: the six close-range fold scenes of `simulation.fold_scenes`, seed 100 (eval scores seed 0), whole frames,
+hybrid with the given checkpoint, r = 5 cm. Each pixel is put in one group by the window survey's own cue (recorded
+from `hybrid.survey_and_cue` as the estimate runs): gated (both the z and the bend past the gate, the network
+answers), or left to the survey, split into away from edges and, near edges, by which of the two cues passed. For
+each group: its share of the valid pixels, the MSAE of the window survey's hybrid, of the ball survey's (`neighbours:
+kdtree`), and of the network alone (`learned`) on the near-edge groups; in brackets each group's part of the frames'
+MSAE. A missing normal counts as 90°.
+
+Run: .venv/bin/python docs/tools/fold_gap.py [--checkpoint lite]   (about 2 minutes on 2 quiet CPU cores)
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from triplet_normal_ros.core import hybrid
+from triplet_normal_ros.core.conventions import DEPTH_RADIUS
+from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.hybrid import PART_SPAN, window_z
+from triplet_normal_ros.evaluation.metrics import angles_rad
+from triplet_normal_ros.simulation.range_scans import fold_frames
+
+SEED = 100
+GROUPS = (
+    "gated",
+    "away from edges",
+    "near edges: z only",
+    "near edges: bend only",
+    "near edges: neither (or a thin window)",
+)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--checkpoint", default="lite")
+    args = parser.parse_args()
+    cue = _record_cue()
+    estimators = {
+        survey: NormalEstimator("hybrid", radius=DEPTH_RADIUS, checkpoint=args.checkpoint, device="cpu", **options)
+        for survey, options in (("window", {}), ("ball", {"neighbours": "kdtree"}))
+    }
+    alone = NormalEstimator("learned", radius=DEPTH_RADIUS, checkpoint=args.checkpoint, device="cpu")
+    sums = {group: np.zeros(4) for group in GROUPS}  # pixels, window, ball and network squared errors
+    total = 0
+    for frame in fold_frames(6, seed=SEED):
+        points, shape = frame.points.reshape(-1, 3), frame.points.shape[:2]
+        valid, exact = frame.valid.reshape(-1), frame.normals.reshape(-1, 3)
+        errors = {}
+        for survey, estimator in estimators.items():
+            normals, _ = estimator.estimate(points, shape=shape)
+            errors[survey] = _squared(normals, exact)
+            if survey == "window":
+                groups = _groups(cue, frame.near_edge.reshape(-1), estimator.gate, estimator.bend)
+        edge_rows = np.flatnonzero(valid & frame.near_edge.reshape(-1))
+        network = np.full(len(points), np.nan)
+        network[edge_rows] = _squared(alone.estimate(points, edge_rows, shape=shape)[0], exact[edge_rows])
+        for group, mask in groups.items():
+            rows = mask & valid
+            sums[group] += (rows.sum(), errors["window"][rows].sum(), errors["ball"][rows].sum(), network[rows].sum())
+        total += valid.sum()
+    print(f"fold scenes, seed {SEED}, 6 whole frames, hybrid, {args.checkpoint}, r = {DEPTH_RADIUS} m")
+    print("| pixels | share | window survey | ball survey | the network alone |")
+    print("| --- | ---: | ---: | ---: | ---: |")
+    for group, (n, window, ball, network) in sums.items():
+        alone_text = f"{network / n:.4f}" if group.startswith("near") and n else "-"
+        print(
+            f"| {group} | {n / total:.1%} | {window / max(n, 1):.4f} ({window / total:.5f}) "
+            f"| {ball / max(n, 1):.4f} ({ball / total:.5f}) | {alone_text} |"
+        )
+    window, ball = (sum(v[i] for v in sums.values()) / total for i in (1, 2))
+    print(f"all valid pixels: window survey {window:.5f}, ball survey {ball:.5f}")
+
+
+def _record_cue() -> dict:
+    """The window survey's fit and cue of the last estimate, recorded by wrapping `hybrid.survey_and_cue`."""
+    cue: dict = {}
+    original = hybrid.survey_and_cue
+
+    def recording(image, fit):
+        survey, structure = original(image, fit)
+        cue.update(z=structure.z.numpy().copy(), bend=structure.bend.numpy().copy(), valid=fit.valid.numpy().copy())
+        cue["box"] = [side.numpy().copy() for side in fit.box]
+        return survey, structure
+
+    hybrid.survey_and_cue = recording
+    return cue
+
+
+def _groups(cue: dict, near_edge: np.ndarray, gate: float, bend: float) -> dict[str, np.ndarray]:
+    """GROUPS as masks, by the window gate's own rule (`hybrid.window_hybrid`); thin windows take the pool path and
+    count with the survey's groups, as their answer is not the lattice's."""
+    top, bottom, left, right = cue["box"]
+    thin = (bottom - top < PART_SPAN - 1) | (right - left < PART_SPAN - 1) | ~cue["valid"]
+    z, bent = cue["z"] > window_z(gate), cue["bend"] > bend
+    gated = ~thin & z & bent
+    near = ~gated & near_edge
+    z_only, bend_only = near & z & ~bent, near & ~z & bent
+    return {
+        "gated": gated,
+        "away from edges": ~gated & ~near_edge,
+        "near edges: z only": z_only,
+        "near edges: bend only": bend_only,
+        "near edges: neither (or a thin window)": near & ~z_only & ~bend_only,
+    }
+
+
+def _squared(normals: np.ndarray, exact: np.ndarray) -> np.ndarray:
+    """Squared sign-invariant angle per point, a missing normal as 90°."""
+    angles = angles_rad(normals, exact)
+    return np.where(np.isfinite(angles), angles, np.pi / 2) ** 2
+
+
+if __name__ == "__main__":
+    main()
