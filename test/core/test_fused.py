@@ -143,6 +143,24 @@ BALL_BOUND = {"simulated depth": 2.1, "simulated lidar": 1.05}
 
 
 @pytest.mark.parametrize("name", sorted(FRAMES))
+def test_the_compiled_finish_is_the_torch_finish(name: str) -> None:
+    """Unit float32 normals and PCL's curvature, NaN at holes and where a window holds no plane, as `kernels.finish`
+    of `frames.surface_variation` gives them for the same windows."""
+    from triplet_normal_ros.core.frames import surface_variation
+    from triplet_normal_ros.core.kernels import finish
+
+    (_, image), (_, fit) = _fits(name)
+    normals, curvature = image.finish()
+    ref_normals, ref_curvature = finish(
+        fit.normal, surface_variation(fit.eigvals), fit.valid & image.finite.reshape(-1)
+    )
+    np.testing.assert_array_equal(np.isnan(normals), np.isnan(ref_normals))
+    assert np.isnan(normals).any(axis=1).sum() > 0 and np.isfinite(normals).all(axis=1).sum() > 1000
+    np.testing.assert_allclose(normals, ref_normals, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(curvature, ref_curvature, rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", sorted(FRAMES))
 def test_the_compiled_pitch_is_the_torch_pitch(name: str) -> None:
     from triplet_normal_ros.core import fused
     from triplet_normal_ros.core.organized import _PITCH_SAMPLES, _pitch, chord_stats, ray_pitch

@@ -34,7 +34,6 @@ from .windows import MomentImage
 __all__ = ["NormalEstimator", "RunInfo", "Settings"]
 
 
-
 def _setting(name: str, doc: str) -> property:
     """An estimator attribute that reads the settings snapshot and, set, replaces it (checked by the same rule)."""
 
@@ -241,7 +240,10 @@ def _window_pca(call: Call, image: MomentImage, query: np.ndarray, progress) -> 
     fit = image.pca(s.radius, s.range_scale)
     finite = image.finite.reshape(-1)
     call.run.estimated = int(finite[torch.from_numpy(query)].sum())
-    normals, curvature = finish(fit.normal, surface_variation(fit.eigvals), fit.valid & finite)
+    if image.compiled:
+        normals, curvature = image.finish()
+    else:
+        normals, curvature = finish(fit.normal, surface_variation(fit.eigvals), fit.valid & finite)
     if progress is not None:
         progress(len(query))
     return normals[query], curvature[query]

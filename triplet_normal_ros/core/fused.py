@@ -69,13 +69,30 @@ class CompiledImage:
         self.fit = out
         self._radius, self._scaled = float(radius), range_scale != 0
         self.table = torch.from_numpy(out["table"])
-        self.counts = self.table[..., :1].contiguous()
-        self.first = self.table[..., :4].contiguous()
         self.offset = torch.from_numpy(out["offset"])
         t = {name: torch.from_numpy(out[name]) for name in ("normal", "eigvals", "count", "valid", "mean", "cov")}
         box = tuple(torch.from_numpy(out["box"][i]) for i in range(4))
         reach = float(radius) if range_scale == 0 else torch.from_numpy(out["reach"])
         return WindowPCA(t["normal"], t["eigvals"], t["count"], t["valid"], reach, t["mean"], t["cov"], box)
+
+    @property
+    def counts(self) -> torch.Tensor:
+        """The count channel of the moment table (`MomentImage.counts`), copied out only when asked for."""
+        return self.table[..., :1].contiguous()
+
+    @property
+    def first(self) -> torch.Tensor:
+        """The count and first-moment channels (`MomentImage.first`), copied out only when asked for."""
+        return self.table[..., :4].contiguous()
+
+    def finish(self) -> tuple[np.ndarray, np.ndarray]:
+        """`kernels.finish` of `pca`'s windows and their surface variation (`frames.surface_variation`) in one
+        compiled pass: unit float32 normals and curvature, NaN where the window is not valid or the pixel a hole."""
+        n = len(self.fit["count"])
+        normals, curvature = np.empty((n, 3), dtype=np.float32), np.empty(n, dtype=np.float32)
+        finite = self.finite.reshape(-1).numpy()
+        _bands(_finish, n, self.fit["normal"], self.fit["eigvals"], self.fit["valid"], finite, normals, curvature)
+        return normals, curvature
 
     def pca_on_slope(self, normal: torch.Tensor) -> WindowPCA:
         """`MomentImage.pca_on_slope`, after `pca`."""
@@ -98,7 +115,10 @@ def warm() -> None:
     for axis in (0, 1):
         chord_stats(grid, axis, 1 << 16)
     pitch = [np.full(12, 0.1, dtype=np.float32), np.full(16, 0.1, dtype=np.float32)]  # the grid's rays, 0.1 rad apart
-    fit = window_pca(grid, pitch[0], pitch[1], 0.3, 0.1)
+    image = CompiledImage(torch.from_numpy(grid.reshape(-1, 3)), grid.shape[:2], tuple(map(torch.from_numpy, pitch)))
+    image.pca(0.3, 0.1)
+    image.finish()
+    fit = image.fit
     survey(fit["table"], fit["offset"], fit)
     window_pca_on_slope(grid, fit, pitch[0], pitch[1], 0.3, np.nan_to_num(fit["normal"]))
 
@@ -186,6 +206,19 @@ def _keep_first(
         for k in range(4):
             new_box[k, i] = box[k, i]
         new_count[i], new_valid[i], new_reach[i] = count[i], valid[i], reach[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _finish(normal, eigvals, valid, finite, normals, curvature, lo, hi):
+    for i in range(lo, hi):
+        if not (valid[i] and finite[i]):
+            normals[i, 0] = normals[i, 1] = normals[i, 2] = curvature[i] = np.nan
+            continue
+        x, y, z = normal[i, 0], normal[i, 1], normal[i, 2]
+        length = max(math.sqrt(x * x + y * y + z * z), 1e-12)
+        normals[i, 0], normals[i, 1], normals[i, 2] = x / length, y / length, z / length
+        total = eigvals[i, 0] + eigvals[i, 1] + eigvals[i, 2]
+        curvature[i] = eigvals[i, 0] / max(total, _TINY) if total > 0 else 0.0
 
 
 def _empty_fit(n: int) -> dict[str, np.ndarray]:
