@@ -239,14 +239,15 @@ def _window_pca(call: Call, image: MomentImage, query: np.ndarray, progress) -> 
     s = call.settings
     fit = image.pca(s.radius, s.range_scale)
     finite = image.finite.reshape(-1)
-    call.run.estimated = int(finite[torch.from_numpy(query)].sum())
+    whole = len(query) == len(finite) and bool(query[0] == 0) and bool((np.diff(query) == 1).all())
+    call.run.estimated = int(finite.sum()) if whole else int(finite[torch.from_numpy(query)].sum())
     if image.compiled:
         normals, curvature = image.finish()
     else:
         normals, curvature = finish(fit.normal, surface_variation(fit.eigvals), fit.valid & finite)
     if progress is not None:
         progress(len(query))
-    return normals[query], curvature[query]
+    return (normals, curvature) if whole else (normals[query], curvature[query])
 
 
 def _as_cloud(points: np.ndarray) -> np.ndarray:

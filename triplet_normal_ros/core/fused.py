@@ -57,7 +57,6 @@ class CompiledImage:
         self.height, self.width = shape
         self.device = cloud.device
         self.points = cloud.to(torch.float64).view(self.height, self.width, 3)
-        self.finite = torch.isfinite(self.points).all(dim=-1)
         self.pitch_row, self.pitch_col = pitch
         self.fit: dict[str, np.ndarray] = {}
 
@@ -76,6 +75,14 @@ class CompiledImage:
         return WindowPCA(t["normal"], t["eigvals"], t["count"], t["valid"], reach, t["mean"], t["cov"], box)
 
     @property
+    def finite(self) -> torch.Tensor:
+        """(H, W) bool: pixels with a point. After `pca`, read off its ranges (NaN exactly where a coordinate is not
+        finite) instead of another pass over the points."""
+        if self.fit:
+            return torch.from_numpy(~np.isnan(self.fit["ranges"]))
+        return torch.isfinite(self.points).all(dim=-1)
+
+    @property
     def counts(self) -> torch.Tensor:
         """The count channel of the moment table (`MomentImage.counts`), copied out only when asked for."""
         return self.table[..., :1].contiguous()
@@ -90,7 +97,7 @@ class CompiledImage:
         compiled pass: unit float32 normals and curvature, NaN where the window is not valid or the pixel a hole."""
         n = len(self.fit["count"])
         normals, curvature = np.empty((n, 3), dtype=np.float32), np.empty(n, dtype=np.float32)
-        finite = self.finite.reshape(-1).numpy()
+        finite = ~np.isnan(self.fit["ranges"]).reshape(-1)
         _bands(_finish, n, self.fit["normal"], self.fit["eigvals"], self.fit["valid"], finite, normals, curvature)
         return normals, curvature
 
