@@ -7,7 +7,8 @@ from `hybrid.survey_and_cue` as the estimate runs): gated (both the z and the be
 answers), or left to the survey, split into away from edges and, near edges, by which of the two cues passed. For
 each group: its share of the valid pixels, the MSAE of the window survey's hybrid, of the ball survey's (`neighbours:
 kdtree`), and of the network alone (`learned`) on the near-edge groups; in brackets each group's part of the frames'
-MSAE. A missing normal counts as 90°.
+MSAE. A missing normal counts as 90°. A second table gives, for the near-edge groups, the MSAE of PCA of the same
+windows, of PCA of the nearest 512 points (`pca`, k = 512, the KD-tree) and the share of windows over 400 points.
 
 Run: .venv/bin/python docs/tools/fold_gap.py [--checkpoint lite]   (about 2 minutes on 2 quiet CPU cores)
 """
@@ -45,33 +46,48 @@ def main() -> None:
         for survey, options in (("window", {}), ("ball", {"neighbours": "kdtree"}))
     }
     alone = NormalEstimator("learned", radius=DEPTH_RADIUS, checkpoint=args.checkpoint, device="cpu")
-    sums = {group: np.zeros(4) for group in GROUPS}  # pixels, window, ball and network squared errors
+    pool_pca = NormalEstimator("pca", radius=DEPTH_RADIUS, k=512, neighbours="kdtree", device="cpu")
+    # pixels; window, ball survey, network, window PCA and nearest-512 PCA squared errors; windows over 400 points
+    sums = {group: np.zeros(7) for group in GROUPS}
     total = 0
     for frame in fold_frames(6, seed=SEED):
         points, shape = frame.points.reshape(-1, 3), frame.points.shape[:2]
         valid, exact = frame.valid.reshape(-1), frame.normals.reshape(-1, 3)
         errors = {}
         for survey, estimator in estimators.items():
+            cue.clear()
             normals, _ = estimator.estimate(points, shape=shape)
             errors[survey] = _squared(normals, exact)
             if survey == "window":
+                if len(cue.get("z", ())) != len(points):
+                    raise SystemExit("a fold frame did not take the window survey: its grid was refused")
                 groups = _groups(cue, frame.near_edge.reshape(-1), estimator.gate, estimator.bend)
+                window_pca, large = _squared(cue["normal"], exact), cue["count"] > 400
         edge_rows = np.flatnonzero(valid & frame.near_edge.reshape(-1))
-        network = np.full(len(points), np.nan)
+        network, nearest = np.full(len(points), np.nan), np.full(len(points), np.nan)
         network[edge_rows] = _squared(alone.estimate(points, edge_rows, shape=shape)[0], exact[edge_rows])
+        nearest[edge_rows] = _squared(pool_pca.estimate(points, edge_rows, shape=shape)[0], exact[edge_rows])
         for group, mask in groups.items():
             rows = mask & valid
-            sums[group] += (rows.sum(), errors["window"][rows].sum(), errors["ball"][rows].sum(), network[rows].sum())
+            sums[group] += [
+                rows.sum(), *(e[rows].sum() for e in (errors["window"], errors["ball"], network, window_pca, nearest)),
+                large[rows].sum(),
+            ]  # fmt: skip
         total += valid.sum()
     print(f"fold scenes, seed {SEED}, 6 whole frames, hybrid, {args.checkpoint}, r = {DEPTH_RADIUS} m")
     print("| pixels | share | window survey | ball survey | the network alone |")
     print("| --- | ---: | ---: | ---: | ---: |")
-    for group, (n, window, ball, network) in sums.items():
+    for group, (n, window, ball, network, *_) in sums.items():
         alone_text = f"{network / n:.4f}" if group.startswith("near") and n else "-"
         print(
             f"| {group} | {n / total:.1%} | {window / max(n, 1):.4f} ({window / total:.5f}) "
             f"| {ball / max(n, 1):.4f} ({ball / total:.5f}) | {alone_text} |"
         )
+    print("\n| near-edge pixels | PCA of the window | PCA of the nearest 512 | windows over 400 points |")
+    print("| --- | ---: | ---: | ---: |")
+    for group, (n, *_, window_pca, nearest, large) in sums.items():
+        if group.startswith("near") and n:
+            print(f"| {group} | {window_pca / n:.4f} | {nearest / n:.4f} | {large / n:.0%} |")
     window, ball = (sum(v[i] for v in sums.values()) / total for i in (1, 2))
     print(f"all valid pixels: window survey {window:.5f}, ball survey {ball:.5f}")
 
@@ -84,6 +100,7 @@ def _record_cue() -> dict:
     def recording(image, fit):
         survey, structure = original(image, fit)
         cue.update(z=structure.z.numpy().copy(), bend=structure.bend.numpy().copy(), valid=fit.valid.numpy().copy())
+        cue.update(normal=fit.normal.numpy().copy(), count=fit.count.numpy().copy())
         cue["box"] = [side.numpy().copy() for side in fit.box]
         return survey, structure
 
@@ -99,7 +116,7 @@ def _groups(cue: dict, near_edge: np.ndarray, gate: float, bend: float) -> dict[
     z, bent = cue["z"] > window_z(gate), cue["bend"] > bend
     gated = ~thin & z & bent
     near = ~gated & near_edge
-    z_only, bend_only = near & z & ~bent, near & ~z & bent
+    z_only, bend_only = near & ~thin & z & ~bent, near & ~thin & ~z & bent
     return {
         "gated": gated,
         "away from edges": ~gated & ~near_edge,

@@ -61,6 +61,7 @@ def _assert_same_fits(normals: torch.Tensor, cues: torch.Tensor, tied: torch.Ten
     """Every nearest-m and whole-pool fit that is not a choice among equally near points agrees to float32
     roundoff; an inlier fit may also differ where a point sits on its band's edge, which the two sides' roundoff puts
     in or out: at most 1 % of the patches."""
+    assert tied[:, : INLIER_SLOTS.start].float().mean() < 0.05  # the exclusion below leaves most fits compared
     fixed = torch.maximum(normals, cues)[:, : INLIER_SLOTS.start]
     assert fixed[~tied[:, : INLIER_SLOTS.start]].max() < ROUNDOFF
     inliers = torch.maximum(normals, cues)[:, INLIER_SLOTS]
@@ -79,6 +80,8 @@ def test_pools_beside_holes_and_too_small_ones_give_the_torch_fits() -> None:
     mask[::7, 100:] = False  # fewer than the widest scale: the larger ones fit what there is
     mask[::11, 2:] = False  # too few for a plane: +z and zero cues
     mask[::13] = mask[::13].flip(1)  # padding first
+    shuffle = torch.from_numpy(np.random.default_rng(0).permutation(mask.shape[1]))
+    local[::5], mask[::5] = local[::5][:, shuffle], mask[::5][:, shuffle]  # unsorted, as a pixel-grid pool comes
     _assert_same_fits(*_differences(local, mask, rotation))
     small = _compiled(local[::11], mask[::11], rotation[::11], SCALES, SEEDS, POOL_FACTOR * K)
     assert torch.equal(small.normals, torch.tensor([0.0, 0.0, 1.0]).expand_as(small.normals))
@@ -105,3 +108,23 @@ def test_equal_distances_at_a_scales_boundary_go_by_pool_column() -> None:
     last[0, 8:16] = True  # the other eight at that distance: another fit
     other = scales.scale_fits(local, last, rotation, (8,), (), 24)
     assert (compiled.cues[:, :8] - other.cues[:, :8]).abs().max() > 0.1
+
+
+def test_inference_patches_carry_the_compiled_fits() -> None:
+    """`build_patches` at inference on a CPU (hashed draws) hands its pools to the compiled fits with the pool size,
+    frames and mask the torch path gives `scales.scale_fits`."""
+    from triplet_normal_ros.core.patches import build_patches
+
+    points = depth_frame(0).points.reshape(-1, 3).astype(np.float64)
+    rows = np.flatnonzero(np.isfinite(points).all(axis=1))[::401]
+    pool = torch.from_numpy(NeighbourIndex(points).nearest(points[rows], DEPTH_RADIUS, POOL_FACTOR * K))
+    cloud, rows = torch.from_numpy(points), torch.from_numpy(rows)
+    options = {"centre_ids": rows, "scales": SCALES, "inlier_seeds": SEEDS}
+    compiled, reference = (
+        build_patches(cloud, cloud[rows], pool, DEPTH_RADIUS, K, compiled=flag, **options) for flag in (True, False)
+    )
+    mask = pool >= 0
+    local = (cloud[pool.clamp_min(0)] - cloud[rows].unsqueeze(1)) / DEPTH_RADIUS
+    normals = (compiled.scales.normals - reference.scales.normals).abs().amax(dim=-1)
+    cues = (compiled.scales.cues - reference.scales.cues).abs().view(len(rows), -1, scales.CUES_PER_SCALE).amax(-1)
+    _assert_same_fits(normals, cues, _tied(torch.where(mask.unsqueeze(-1), local, 0.0), mask))

@@ -12,7 +12,7 @@ import torch
 from triplet_normal_ros.core.cloud import without_no_returns
 from triplet_normal_ros.core.conventions import LIDAR_RADIUS, LIDAR_RANGE_SCALE
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.organized import MAX_BROKEN_STEPS, inspect_grid, scan_line_breaks
+from triplet_normal_ros.core.organized import MAX_BROKEN_STEPS, MAX_ORIGIN_SHARE, inspect_grid, scan_line_breaks
 from triplet_normal_ros.io.bags import InputBag, decode_cloud
 from triplet_normal_ros.io.pointcloud2 import read_xyz
 from triplet_normal_ros.simulation.depth_camera import depth_frame
@@ -110,3 +110,25 @@ def test_the_destaggered_scan_still_takes_the_window(ouster) -> None:
     estimator = NormalEstimator("pca", radius=LIDAR_RADIUS, range_scale=LIDAR_RANGE_SCALE, device="cpu")
     estimator.estimate(points, shape=shape)
     assert estimator.last_run.search == "window" and estimator.last_run.plan.note == ""
+
+
+def test_zeros_kept_as_points_send_the_frame_to_the_pool_path_and_lose_no_other_normal() -> None:
+    """A depth frame whose no-returns were kept as points at the origin (10 % of its pixels) is not a range image's
+    returns: windows would be cut around every zero. The grid is refused with its reason, and every real point gets the
+    normal it gets when those pixels are holes."""
+    frame = depth_frame(2)
+    points = frame.points.reshape(-1, 3).astype(np.float64)
+    zeroed = np.flatnonzero(np.isfinite(points).all(axis=1))[::10]
+    zeros, holes = points.copy(), points.copy()
+    zeros[zeroed], holes[zeroed] = 0.0, np.nan
+    check = _check(zeros, frame.points.shape[:2])
+    assert check.scan_lines and check.pitch is None and "origin" in check.reason
+    few = points.copy()
+    few[zeroed[:: int(0.5 / MAX_ORIGIN_SHARE)]] = 0.0  # 0.2 % of the points: still a range image
+    assert _check(few, frame.points.shape[:2]).pitch is not None
+    estimator = NormalEstimator("pca", radius=0.05)
+    rows = np.setdiff1d(np.flatnonzero(np.isfinite(points).all(axis=1)), zeroed)[::7]
+    with_zeros, _ = estimator.estimate(zeros, rows, shape=frame.points.shape[:2])
+    assert estimator.last_run.plan.survey != "window" and "origin" in estimator.last_run.plan.note
+    with_holes, _ = estimator.estimate(holes, rows, shape=frame.points.shape[:2])
+    assert np.isfinite(with_zeros).all(axis=1).mean() >= np.isfinite(with_holes).all(axis=1).mean() - 1e-3

@@ -13,10 +13,12 @@ import torch
 #: Below this length (the matrix scaled to unit trace) the largest cross product of two rows of A - λ0 I says no
 #: plane: the smallest eigenvalue is repeated, and the eigenvector answer is NaN rather than an arbitrary axis.
 DEGENERATE_CROSS = 1e-10
-#: Pool PCA hands a pool to eigh when its two smallest eigenvalues lie closer than this fraction of the trace: there
-#: the closed form's normal drifts from eigh's (1e-12 at 1e-3 on a depth frame, growing as the gap closes), and at 0
-#: (a line, coincident points, an isotropic blob) only eigh's choice of axis matches `kernels.pool_pca`'s.
+#: Pool PCA and the compiled scale fits hand a matrix to eigh when its two smallest eigenvalues lie closer than this
+#: fraction of the trace: there the closed form's normal drifts from eigh's (1e-12 at 1e-3 on a depth frame, growing as
+#: the gap closes), and at 0 (a line, coincident points, an isotropic blob) only eigh's choice of axis matches
+#: `kernels.pool_pca`'s.
 EIGEN_GAP = 1e-3
+
 
 def smallest_eigenvector(cov: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Ascending eigenvalues (N, 3) and the unit eigenvector of the smallest (N, 3) of symmetric 3×3 matrices given as

@@ -200,7 +200,7 @@ def _keep_first(
     new_normal, new_eigvals, new_count, new_valid, new_mean, new_cov, new_box, new_reach, lo, hi,
 ):  # fmt: skip
     """The second fit's rows lo..hi finished: the first fit's where the window did not change, else the offset added
-    to the new mean (one pass, where boolean-mask copies of eight arrays took a few times as long)."""
+    to the new mean; one pass over the eight arrays rather than a boolean-mask copy of each."""
     for i in range(lo, hi):
         if changed[i]:
             for k in range(3):

@@ -8,7 +8,9 @@ coincide (`eigen.EIGEN_GAP`), in float64 from the float32 offsets the torch code
 
 The torch code stays the reference and runs on a GPU; it fits in float32 with LAPACK's eigh, so the two agree to
 float32 roundoff, except where a point sits on an inlier band's edge or two pool points are equally near at a
-scale's boundary: there each picks its own side (test/core/test_fused_scales.py counts those patches).
+scale's boundary: there each picks its own side (test/core/test_fused_scales.py counts those patches). Where a fit's
+two smallest eigenvalues coincide (collinear or coincident points) any axis across them is an answer, and the two
+solvers may pick different ones.
 """
 
 from __future__ import annotations

@@ -54,7 +54,8 @@ def build_patches(
     them twice (hybrid has them from its survey); eigenvalues at any scale give the same curvature. `point_ids` (N,)
     names each cloud point for the hash when the cloud is part of a larger one (a tile): a patch then draws the
     points it would draw in the whole cloud. At inference on a CPU (hashed draws, the pool's own frame) the compiled
-    loop of `fused_pools.py` builds the same patches; `compiled=False` keeps this torch code, its reference.
+    loop of `fused_pools.py` builds the same patches, and on a CPU (training's draws too) the scale head's fits are
+    `fused_scales.py`'s; `compiled=False` keeps this torch code and `scales.scale_fits`, their reference.
     """
     compiled = compiled is not False and cloud.device.type == "cpu"
     if compiled and generator is None and rotation is None and centre_ids is not None:
