@@ -124,7 +124,7 @@ def test_zeros_kept_as_points_send_the_frame_to_the_pool_path_and_lose_no_other_
     check = _check(zeros, frame.points.shape[:2])
     assert check.scan_lines and check.pitch is None and "origin" in check.reason
     few = points.copy()
-    few[zeroed[:: int(0.5 / MAX_ORIGIN_SHARE)]] = 0.0  # 0.2 % of the points: still a range image
+    few[zeroed[:: int(0.5 / MAX_ORIGIN_SHARE)]] = 0.0  # 0.2 % of the pixels: still a range image
     assert _check(few, frame.points.shape[:2]).pitch is not None
     estimator = NormalEstimator("pca", radius=0.05)
     rows = np.setdiff1d(np.flatnonzero(np.isfinite(points).all(axis=1)), zeroed)[::7]

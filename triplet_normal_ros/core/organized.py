@@ -36,8 +36,8 @@ SCAN_STEP_SPREAD = 4.0
 #: about half of its column steps, and column-major order, shuffled rows and a filter's layout at 0.5-65 %
 #: (test/core/test_grid_check.py).
 MAX_BROKEN_STEPS = 0.001
-#: A range image's returns lie away from its sensor: where more than this share of the points with coordinates sit at
-#: the origin (zeros a driver marks no-returns with, kept as points), windows would be cut around each of them, so the
+#: A range image's returns lie away from its sensor: where more than this share of its pixels hold a point at the
+#: origin (zeros a driver marks no-returns with, kept as points), windows would be cut around each of them, so the
 #: grid is not trusted for windows and the pool path answers the cloud.
 MAX_ORIGIN_SHARE = 0.01
 #: How many rows (and columns) `scan_line_breaks` reads.
@@ -142,8 +142,8 @@ def inspect_grid(cloud: torch.Tensor, shape: tuple[int, int], pitch: bool = True
         return GridCheck(True)
     at_origin = _origin_share(grid)
     if at_origin > MAX_ORIGIN_SHARE:
-        return GridCheck(True, None, f"{at_origin:.1%} of its points sit at the sensor's origin (zeros kept as points, "
-                         "not returns)")
+        return GridCheck(True, None, f"{at_origin:.1%} of its pixels hold a point at the sensor's origin (zeros kept "
+                         "as points, not returns)")
     row, col = _pitch(grid, 0), _pitch(grid, 1)
     if row is None or col is None:
         return GridCheck(True, None, "the angles between adjacent rays are not one sensor's (not in its frame)")
@@ -151,9 +151,8 @@ def inspect_grid(cloud: torch.Tensor, shape: tuple[int, int], pitch: bool = True
 
 
 def _origin_share(grid: torch.Tensor) -> float:
-    """The share of the points with finite coordinates that sit exactly at the origin."""
-    finite = torch.isfinite(grid).all(dim=-1)
-    return float((finite & (grid == 0).all(dim=-1)).sum()) / max(float(finite.sum()), 1.0)
+    """The share of the (H, W, 3) grid's pixels whose point sits exactly at the origin (one comparison a pixel)."""
+    return float((grid == 0).all(dim=-1).sum()) / max(grid.shape[0] * grid.shape[1], 1)
 
 
 def compiled(device_type: str) -> bool:
