@@ -21,7 +21,7 @@ from triplet_normal_ros.core.conventions import (
 )
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.fused import CompiledImage
-from triplet_normal_ros.core.hybrid import survey_and_cue, window_z
+from triplet_normal_ros.core.hybrid import survey_and_cue, survey_on_slope, window_z
 from triplet_normal_ros.core.organized import range_pitch
 from triplet_normal_ros.core.windows import MomentImage
 from triplet_normal_ros.evaluation.metrics import msae
@@ -116,6 +116,22 @@ def test_the_compiled_slope_windows_are_the_torch_slope_windows(name: str) -> No
     assert float((1 - (reference.normal[valid] * compiled.normal[valid]).sum(dim=1).abs()).max()) < 1e-12
     shrunk = [(b - a) < (fb - fa) for a, b, fa, fb in ((reference.box[0], reference.box[1], *fits[0].box[:2]),)]
     assert bool(shrunk[0].any()), "some window on these frames sees its surface obliquely and is fitted to it"
+
+
+@pytest.mark.parametrize("name", sorted(FRAMES))
+def test_the_compiled_sloped_survey_and_its_gate_are_the_torch_ones(name: str) -> None:
+    """The survey hybrid answers with and the cue its gate reads, both from the slope-fitted windows: compiled and in
+    torch, the same normals to roundoff and the gate open on the same pixels."""
+    images, fits = _fits(name)
+    (torch_normal, torch_cue), (normal, cue) = (
+        survey_on_slope(i, f, *survey_and_cue(i, f)) for i, f in zip(images, fits, strict=True)
+    )
+    valid = fits[0].valid
+    assert float((1 - (torch_normal[valid] * normal[valid]).sum(dim=1).abs()).max()) < 1e-12
+    assert torch.allclose(cue.bend[valid], torch_cue.bend[valid], rtol=1e-6, atol=1e-9)
+    threshold = window_z(HYBRID_GATE)
+    gates = [(c.z > threshold) & (c.bend > HYBRID_BEND) & valid for c in (torch_cue, cue)]
+    assert torch.equal(gates[0], gates[1])
 
 
 @pytest.mark.parametrize("name", ["simulated depth", "simulated lidar"])

@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from . import lattice
 from .conventions import MIN_NEIGHBOURS
 from .frames import quadric_gain, spans_plane, surface_variation
 from .kernels import CHUNK, Call, finish, learned_kernel, network, over_pools, pool_pca
@@ -72,9 +73,10 @@ def window_hybrid(
     lines: ScanLines,
     progress: Callable[[int], None] | None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Hybrid on an organized range image: the window survey everywhere (its ray-noise plane normal and PCL
-    curvature), then pools (`open_pools()`, opened only when some point needs one) and the network only where the
-    window's parts sit off its plane (`structure`), on a lattice of those points (`lattice_network`).
+    """Hybrid on an organized range image: the window survey everywhere (its ray-noise plane normal from the window
+    fitted to the slope, and PCL curvature), then pools (`open_pools()`, opened only when some point needs one) and the
+    network only where the parts of the first window or of the fitted one sit off its plane (`structure`,
+    `survey_on_slope`), on a lattice of those points (`lattice_network`).
 
     A window less than PART_SPAN pixels across on either axis (a spinning LiDAR's beams at range, a sliver beside
     an edge) cannot be cut into parts, so the cue is blind there; nor is a window that walls cut below three
@@ -84,14 +86,14 @@ def window_hybrid(
     s = call.settings
     with call.timed("survey"):
         fit = image.pca(s.radius, s.range_scale)
-        survey, cue = survey_and_cue(image, fit)
-        survey = survey_on_slope(image, fit, survey)
+        first, cue = survey_and_cue(image, fit)
+        survey, fitted = survey_on_slope(image, fit, first, cue)
         finite = image.finite.reshape(-1)
         valid = fit.valid & finite
         top, bottom, left, right = fit.box
         narrow = (bottom - top < PART_SPAN - 1) | (right - left < PART_SPAN - 1)
         thin = finite & (narrow | ~fit.valid)  # a window that walls cut below 3 points may still hold a ball
-        structured = (cue.z > window_z(s.gate)) & (cue.bend > s.bend)
+        structured = _opens(cue, s.gate, s.bend) | _opens(fitted, s.gate, s.bend)
         gated = valid & ~thin & structured
         normals, curvature = finish(survey, surface_variation(fit.eigvals), valid)
         normals, curvature = normals[query], curvature[query]
@@ -120,6 +122,11 @@ def window_hybrid(
     return normals, curvature
 
 
+def _opens(cue: Structure, gate: float, bend: float) -> torch.Tensor:
+    """Where a window's parts sit off its plane both significantly (z) and substantially (bend): the window gate."""
+    return (cue.z > window_z(gate)) & (cue.bend > bend)
+
+
 def window_z(gate: float) -> float:
     """The window gate's z threshold for hybrid's `gate`: a part's centroid more than sqrt(gate) standard errors off the
     survey's plane (3.16 at the default 10), beside the bend it must also exceed.
@@ -131,18 +138,31 @@ def window_z(gate: float) -> float:
 
 
 def lattice_network(
-    call: Call, search: PoolSearch, cloud: torch.Tensor, gated: np.ndarray, width: int, pixels: np.ndarray, lines
+    call: Call,
+    search: PoolSearch,
+    cloud: torch.Tensor,
+    gated: np.ndarray,
+    width: int,
+    pixels: np.ndarray,
+    lines: ScanLines,
+    levels: tuple[tuple[int, float], ...] | None = None,
 ) -> np.ndarray:
     """(M, 3) float32 answers for the gated `pixels` of an image `width` pixels wide: the network on a lattice of the
     gated pixels, the mean of a pixel's lattice neighbours where they agree, and the network on the pixel's own pool
-    where they do not (`lattice.py`); NaN where the network gives none."""
-    plan = plan_lattice(gated, (len(gated) // width, width), pixels)
-    answers = _network(call, search, cloud, plan.run, lines)
+    where they do not (`lattice.py`); NaN where the network gives none. The lattice pixels' own answers come the same
+    way from the next, coarser level of `levels` (default `lattice.levels()`), the coarsest level's from the network."""
+    levels = lattice.levels() if levels is None else levels
+    if not levels:
+        return _network(call, search, cloud, pixels, lines)
+    (stride, degrees), coarser = levels[0], levels[1:]
+    plan = plan_lattice(gated, (len(gated) // width, width), pixels, stride)
+    answers = lattice_network(call, search, cloud, gated, width, plan.run, lines, coarser)
     with call.timed("lattice"):
-        chosen = agreed(torch.from_numpy(answers), torch.from_numpy(plan.candidates)).numpy().astype(np.float32)
-        lattice = np.isin(pixels, plan.run)
-        chosen[lattice] = answers[np.searchsorted(plan.run, pixels[lattice])]
-    alone = np.flatnonzero(~lattice & ~np.isfinite(chosen).all(axis=1))
+        chosen = agreed(torch.from_numpy(answers), torch.from_numpy(plan.candidates), degrees)
+        chosen = chosen.numpy().astype(np.float32)
+        own = np.isin(pixels, plan.run)
+        chosen[own] = answers[np.searchsorted(plan.run, pixels[own])]
+    alone = np.flatnonzero(~own & ~np.isfinite(chosen).all(axis=1))
     if len(alone):
         chosen[alone] = _network(call, search, cloud, pixels[alone], lines)
     return chosen
@@ -169,29 +189,39 @@ def survey_and_cue(image: MomentImage, fit: WindowPCA) -> tuple[torch.Tensor, St
     return torch.from_numpy(normal), Structure(torch.from_numpy(z), torch.from_numpy(bend))
 
 
-def survey_on_slope(image: MomentImage, fit: WindowPCA, survey: torch.Tensor) -> torch.Tensor:
-    """The survey's normal from windows fitted to the slope of its first plane (`windows.on_slope`), where they fit one.
+def survey_on_slope(
+    image: MomentImage, fit: WindowPCA, survey: torch.Tensor, cue: Structure
+) -> tuple[torch.Tensor, Structure]:
+    """The survey's normal from windows fitted to the slope of its first plane (`windows.on_slope`), where they fit one,
+    and the parts' cue (`structure`) of those same windows; where none fits, the first window's normal and `cue`.
 
     A window sized from the range reaches past the ball on a surface seen at a grazing angle, across a fold where the
     range is continuous; the window fitted to the slope of the first survey's plane covers the ball on that surface.
     The first plane is the ray-noise plane, not PCA's: on a far, noisy surface PCA's axis tips toward the ray and
-    would read as a slope that is not there. The gate still reads the first windows (their parts see the fold), so
-    which points reach the network does not change; the points it leaves to the survey get the better plane.
-    Measured on fold and room frames eval never scores: docs/RESULTS.md, "Folds".
+    would read as a slope that is not there. The gate reads both windows' cues: the first window's parts see a fold
+    beside the ball, the fitted window's parts see one the survey's own answer straddles, which the first window,
+    sized for a frontal surface, can average away. Measured on fold and room frames eval never scores:
+    docs/RESULTS.md, "Folds" and "The gate reads the fitted windows too".
     """
     first = torch.where(fit.valid.unsqueeze(-1), survey, 0.0)
     sloped = image.pca_on_slope(first)
-    return torch.where(sloped.valid.unsqueeze(-1), _ray_noise_normal(image, sloped), survey)
+    normal, sloped_cue = _sloped_survey(image, sloped)
+    fitted = sloped.valid
+    return torch.where(fitted.unsqueeze(-1), normal, survey), Structure(
+        torch.where(fitted, sloped_cue.z, cue.z), torch.where(fitted, sloped_cue.bend, cue.bend)
+    )
 
 
-def _ray_noise_normal(image: MomentImage, fit: WindowPCA) -> torch.Tensor:
-    """`ray_noise_normal` of windows `image` fitted: compiled where they were (the same values to roundoff)."""
+def _sloped_survey(image: MomentImage, fit: WindowPCA) -> tuple[torch.Tensor, Structure]:
+    """`ray_noise_normal` and `structure` of the windows `pca_on_slope` fitted: compiled where they were (the same
+    values to roundoff: test_fused.py), else in torch."""
     if not image.compiled:
-        return ray_noise_normal(fit)
+        normal = ray_noise_normal(fit)
+        return normal, structure(image, fit, normal)
     from . import fused
 
-    normal, _, _ = fused.survey(image.table.numpy(), image.offset.numpy(), image.slope_fit)
-    return torch.from_numpy(normal)
+    normal, z, bend = fused.survey(image.table.numpy(), image.offset.numpy(), image.slope_fit)
+    return torch.from_numpy(normal), Structure(torch.from_numpy(z), torch.from_numpy(bend))
 
 
 class Structure(NamedTuple):

@@ -10,11 +10,17 @@ its own pool. The mean of agreeing answers also averages the network's own noise
 as accurate as the network on every gated pixel, at 40 % of its passes at 10° and a fifth fewer at 25° (docs/RESULTS.md,
 "The network on a lattice").
 
+The lattice's own pixels are answered the same way one level up: those off the coarser lattice (every COARSE_STRIDE-th
+row and column) take the mean of their gated coarse neighbours where those agree within the tighter
+COARSE_AGREE_DEGREES, else the network. A real depth camera's noise opens the gate on wide patches of a surface, where
+this halves the passes again; at folds the coarse neighbours disagree and the finer rule stands (docs/RESULTS.md,
+"A coarser lattice level").
+
 A pixel that takes its neighbours' mean never opens its own pool, so where that pool would have given no answer (it
 lies on one scan line) the pixel has the neighbours' network answer instead of the survey's; both are planes its
 window determines. A pixel's answer depends on the image alone, not on which pixels were asked for: a sparse query
-gets the answers the whole frame gets, at up to five network passes per gated pixel asked for (its four lattice
-neighbours, and its own where they disagree).
+gets the answers the whole frame gets, at up to 21 network passes per gated pixel asked for (its four lattice
+neighbours, each of theirs at the coarser level, and each one's own where those disagree).
 """
 
 from __future__ import annotations
@@ -32,6 +38,21 @@ STRIDE = 2
 #: never scores (docs/RESULTS.md): from 5° to 25° hybrid's MSAE moved by about 1 %, and 25° runs the network on a fifth
 #: fewer pixels than 10°, which buys back most of what the window gate's lower z (`hybrid.window_z`) adds.
 AGREE_DEGREES = 25.0
+#: The coarser lattice's spacing in pixels (a multiple of STRIDE; STRIDE or less turns the coarser level off) ...
+COARSE_STRIDE = 4
+#: ... and its agreement angle: tighter than AGREE_DEGREES because its neighbours lie twice as far apart. Chosen on
+#: fold and room frames of seeds eval never scores and the real Kinect frames (docs/RESULTS.md).
+COARSE_AGREE_DEGREES = 7.5
+
+
+def levels() -> tuple[tuple[int, float], ...]:
+    """The lattice levels, finest first, as (stride, agreement angle), read at the call: none at STRIDE 1 (the
+    network on every gated pixel), the coarser level only where COARSE_STRIDE exceeds STRIDE."""
+    if STRIDE <= 1:
+        return ()
+    if COARSE_STRIDE > STRIDE:
+        return ((STRIDE, AGREE_DEGREES), (COARSE_STRIDE, COARSE_AGREE_DEGREES))
+    return ((STRIDE, AGREE_DEGREES),)
 
 
 class LatticePlan(NamedTuple):
@@ -69,11 +90,11 @@ def _bracket(index: np.ndarray, stride: int, size: int) -> np.ndarray:
     return np.stack((below, np.where(on | (above >= size), -1, above)), axis=1)
 
 
-def agreed(answers: torch.Tensor, candidates: torch.Tensor) -> torch.Tensor:
+def agreed(answers: torch.Tensor, candidates: torch.Tensor, degrees: float | None = None) -> torch.Tensor:
     """(M, 3) the sign-aligned mean of each pixel's candidate answers (rows of `answers`, NaN where the network gave
-    none) where at least two answered and each lies within AGREE_DEGREES of it; NaN elsewhere. One neighbour's answer
-    alone is not taken: it carries that pixel's network noise undiluted, and its own answer costs the same.
-    `candidates` (M, 4) rows of `answers`, -1 padded."""
+    none) where at least two answered and each lies within `degrees` (default AGREE_DEGREES) of it; NaN elsewhere.
+    One neighbour's answer alone is not taken: it carries that pixel's network noise undiluted, and its own answer
+    costs the same. `candidates` (M, 4) rows of `answers`, -1 padded."""
     if len(answers) == 0:  # no asked-for pixel has a gated lattice neighbour
         return torch.full((len(candidates), 3), torch.nan, dtype=torch.float64)
     normal = answers[candidates.clamp_min(0)].to(torch.float64)  # (M, 4, 3)
@@ -82,6 +103,7 @@ def agreed(answers: torch.Tensor, candidates: torch.Tensor) -> torch.Tensor:
     first = normal[torch.arange(len(normal)), usable.to(torch.int8).argmax(dim=1)]
     sign = torch.where((normal * first.unsqueeze(1)).sum(dim=-1) < 0, -1.0, 1.0)
     mean = torch.nn.functional.normalize((normal * sign.unsqueeze(-1)).sum(dim=1), dim=-1)
-    close = (normal * mean.unsqueeze(1)).sum(dim=-1).abs() >= math.cos(math.radians(AGREE_DEGREES))
+    within = math.cos(math.radians(AGREE_DEGREES if degrees is None else degrees))
+    close = (normal * mean.unsqueeze(1)).sum(dim=-1).abs() >= within
     agree = (close | ~usable).all(dim=1) & (usable.sum(dim=1) >= 2)
     return torch.where(agree.unsqueeze(-1), mean, torch.nan)
