@@ -12,10 +12,11 @@ exact normals), each variant's network passes and seconds per frame.
 `--z` replaces the window gate's z threshold (`hybrid.window_z`, sqrt(gate)) by each given value in turn, the bend
 unchanged. `--coarse` lists coarser lattice strides (0: none), `--coarse-agree` their angles; `--gate-windows` lists
 which windows' parts the gate reads: `both` (the first windows and the slope-fitted ones the survey answers from, as
-shipped) or `first` (the windows sized from the range alone, as before).
+shipped), `first` (the windows sized from the range alone, as before) or `fitted` (the fitted ones alone; the gate
+stays shut where no window fits the slope).
 
 Run: .venv/bin/python docs/tools/lattice_study.py [--checkpoint lite] [--seeds 100] [--strides 1,2] [--agree 10]
-         [--z 5.48,3.16] [--coarse 0,4] [--coarse-agree 7.5] [--gate-windows both,first]
+         [--z 5.48,3.16] [--coarse 0,4] [--coarse-agree 7.5] [--gate-windows both,first,fitted]
 """
 
 from __future__ import annotations
@@ -96,12 +97,13 @@ def main() -> None:
     )
     parser.add_argument("--coarse", default=str(lattice.COARSE_STRIDE), help="coarser lattice strides, 0: none")
     parser.add_argument("--coarse-agree", default=str(lattice.COARSE_AGREE_DEGREES), help="their angles, degrees")
-    parser.add_argument("--gate-windows", default="both", help="both or first, comma-separated")
+    parser.add_argument("--gate-windows", default="both", help="both, first or fitted, comma-separated")
     parser.add_argument("--z", default="", help="window gate z thresholds, comma-separated (default: the rule)")
     args = parser.parse_args()
-    fitted_gate = hybrid.survey_on_slope
+    fitted_gate, first_cue = hybrid.survey_on_slope, hybrid.survey_and_cue
     for windows in args.gate_windows.split(","):
-        hybrid.survey_on_slope = fitted_gate if windows == "both" else partial(_first_windows_gate, fitted_gate)
+        hybrid.survey_on_slope = partial(_first_windows_gate, fitted_gate) if windows == "first" else fitted_gate
+        hybrid.survey_and_cue = partial(_shut_cue, first_cue) if windows == "fitted" else first_cue
         for z in _floats(args.z) if args.z else [None]:
             if z is not None:
                 hybrid.window_z = lambda _gate, z=z: z
@@ -115,6 +117,12 @@ def _first_windows_gate(fitted_gate, image, fit, survey, cue):
     windows alone, as it did before; the survey still answers from the fitted windows."""
     normal, _ = fitted_gate(image, fit, survey, cue)
     return normal, cue
+
+
+def _shut_cue(first_cue, image, fit):
+    """`hybrid.survey_and_cue` with a cue that never opens the gate: the gate reads the fitted windows alone."""
+    normal, cue = first_cue(image, fit)
+    return normal, hybrid.Structure(cue.z * 0, cue.bend * 0)
 
 
 def report(args: argparse.Namespace) -> None:

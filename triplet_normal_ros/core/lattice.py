@@ -14,7 +14,7 @@ The lattice's own pixels are answered the same way one level up: those off the c
 row and column) take the mean of their gated coarse neighbours where those agree within the tighter
 COARSE_AGREE_DEGREES, else the network. A real depth camera's noise opens the gate on wide patches of a surface, where
 this halves the passes again; at folds the coarse neighbours disagree and the finer rule stands (docs/RESULTS.md,
-"A coarser lattice level").
+"The gate reads the fitted windows too").
 
 A pixel that takes its neighbours' mean never opens its own pool, so where that pool would have given no answer (it
 lies on one scan line) the pixel has the neighbours' network answer instead of the survey's; both are planes its
