@@ -132,3 +132,26 @@ def test_zeros_kept_as_points_send_the_frame_to_the_pool_path_and_lose_no_other_
     assert estimator.last_run.plan.survey != "window" and "origin" in estimator.last_run.plan.note
     with_holes, _ = estimator.estimate(holes, rows, shape=frame.points.shape[:2])
     assert np.isfinite(with_zeros).all(axis=1).mean() >= np.isfinite(with_holes).all(axis=1).mean() - 1e-3
+
+
+@pytest.mark.parametrize("layout", ["sensor order", *sorted(LAYOUTS)])
+def test_the_compiled_grid_check_measures_what_the_torch_one_does(layout: str, ouster, kinect) -> None:
+    """On a CPU the grid check reads compiled unit rays once for its three measures; each must be the torch one's:
+    the scan-line breaks along both axes (real frames in sensor order and in each broken layout), and the count of
+    points at the origin (a frame with zeros kept as points, and repeated points whose steps are zero)."""
+    from triplet_normal_ros.core import fused
+    from triplet_normal_ros.core.organized import SCAN_STEP_SPREAD, _checked_lines, _origin_share
+
+    for points, shape in (ouster, kinect):
+        cloud = points.copy() if layout == "sensor order" else LAYOUTS[layout](points, shape)
+        cloud[::23] = 0.0  # zeros kept as points
+        cloud[1::29] = cloud[::29][: len(cloud[1::29])]  # a point repeated at the next pixel: a zero step
+        grid = torch.from_numpy(cloud).view(*shape, 3)
+        rays, at_origin = fused.unit_rays(grid.numpy())
+        assert at_origin == round(_origin_share(grid) * shape[0] * shape[1]) > 0
+        for axis in (0, 1):
+            reference = scan_line_breaks(grid, axis)
+            compiled = fused.scan_line_breaks(rays, axis, _checked_lines(grid, axis).numpy(), SCAN_STEP_SPREAD)
+            assert (compiled is None) == (reference is None)
+            if reference is not None:
+                assert compiled == pytest.approx(reference, rel=1e-12, abs=1e-15), (axis, compiled, reference)

@@ -119,8 +119,10 @@ def warm() -> None:
     the node's start-up probe calls this whatever its method, and a reload to another method finds them ready."""
     v, u = np.mgrid[0:12, 0:16].astype(np.float64)
     grid = np.stack(((u - 8) / 10, (v - 6) / 10, np.ones_like(u)), axis=-1)
+    rays, _ = unit_rays(grid)
     for axis in (0, 1):
-        chord_stats(grid, axis, 1 << 16)
+        chord_stats(grid, axis, 1 << 16, rays)
+        scan_line_breaks(rays, axis, np.arange(grid.shape[1 - axis]), 4.0)
     pitch = [np.full(12, 0.1, dtype=np.float32), np.full(16, 0.1, dtype=np.float32)]  # the grid's rays, 0.1 rad apart
     image = CompiledImage(torch.from_numpy(grid.reshape(-1, 3)), grid.shape[:2], tuple(map(torch.from_numpy, pitch)))
     image.pca(0.3, 0.1)
@@ -608,19 +610,43 @@ def _round_or_zero(x):
     return 0.0 if np.isnan(x) else np.round(x)
 
 
-def chord_stats(grid: np.ndarray, axis: int, samples: int) -> tuple[float, float, torch.Tensor] | None:
+def unit_rays(grid: np.ndarray) -> tuple[np.ndarray, int]:
+    """`organized.unit_rays` of an (H, W, 3) grid in one compiled pass, and how many of its points sit exactly at the
+    origin (`organized._origin_share`'s count), so that the grid check reads every point once."""
+    grid = np.ascontiguousarray(grid, dtype=np.float64)
+    rays, at_origin = np.empty_like(grid), np.zeros(grid.shape[0], dtype=np.int64)
+    _bands(_unit_rays, grid.shape[0], grid, rays, at_origin)
+    return rays, int(at_origin.sum())
+
+
+def scan_line_breaks(rays: np.ndarray, axis: int, lines: np.ndarray, spread: float) -> float | None:
+    """`organized.scan_line_breaks` compiled, from `unit_rays`, the indices of the pixel lines it reads (across `axis`)
+    and its SCAN_STEP_SPREAD: the larger of the shares of steps that jump and of step pairs that turn back, or None
+    when fewer than 16 steps have a ray at both ends."""
+    picked = np.ascontiguousarray(rays[lines] if axis == 1 else rays[:, lines].transpose(1, 0, 2))
+    angles = np.full((picked.shape[0], max(picked.shape[1] - 1, 0)), np.nan)
+    _line_angles(picked, angles)
+    known = angles[np.isfinite(angles)]
+    if len(known) < 16:
+        return None
+    median = float(np.partition(known, (len(known) - 1) // 2)[(len(known) - 1) // 2])  # torch.median's lower middle
+    return _breaks(picked, angles, median, spread)
+
+
+def chord_stats(
+    grid: np.ndarray, axis: int, samples: int, rays: np.ndarray | None = None
+) -> tuple[float, float, torch.Tensor] | None:
     """`organized.chord_stats` compiled: the 5 % and 95 % quantiles of the squared chords between adjacent unit rays
     along `axis` (on at most `samples` of them) and each pixel line's lower median, or None when fewer than 16 pairs
-    have a ray at both ends."""
-    grid = np.ascontiguousarray(grid, dtype=np.float64)
-    rays = np.empty_like(grid)
-    _bands(_unit_rays, grid.shape[0], grid, rays)
+    have a ray at both ends. `rays`, the grid's `unit_rays` where the caller has them, saves their pass."""
+    if rays is None:
+        rays, _ = unit_rays(grid)
     if axis == 0:
-        chord2 = np.empty((grid.shape[0] - 1, grid.shape[1]))
-        _bands(_chords, grid.shape[0] - 1, rays, chord2, 1, 0)
+        chord2 = np.empty((rays.shape[0] - 1, rays.shape[1]))
+        _bands(_chords, rays.shape[0] - 1, rays, chord2, 1, 0)
     else:
-        chord2 = np.empty((grid.shape[0], grid.shape[1] - 1))
-        _bands(_chords, grid.shape[0], rays, chord2, 0, 1)
+        chord2 = np.empty((rays.shape[0], rays.shape[1] - 1))
+        _bands(_chords, rays.shape[0], rays, chord2, 0, 1)
     valid = chord2[np.isfinite(chord2)]
     if len(valid) < 16:
         return None
@@ -648,9 +674,9 @@ def _quantiles(values: np.ndarray, *qs: float) -> list[float]:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _unit_rays(grid, rays, lo, hi):
+def _unit_rays(grid, rays, at_origin, lo, hi):
     """`organized.unit_rays`: each point's direction from the origin, NaN where there is no point or it is the
-    origin."""
+    origin; and per row, how many points sit exactly at the origin."""
     for r in range(lo, hi):
         for c in range(grid.shape[1]):
             x, y, z = grid[r, c, 0], grid[r, c, 1], grid[r, c, 2]
@@ -659,6 +685,46 @@ def _unit_rays(grid, rays, lo, hi):
                 rays[r, c, 0], rays[r, c, 1], rays[r, c, 2] = x / length, y / length, z / length
             else:
                 rays[r, c, 0] = rays[r, c, 1] = rays[r, c, 2] = np.nan
+                if x == 0.0 and y == 0.0 and z == 0.0:
+                    at_origin[r] += 1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _line_angles(lines, angles):
+    """The angle between each pair of adjacent unit rays along each line, 2·asin(chord / 2) (NaN where either is
+    missing), as `organized.scan_line_breaks` measures it."""
+    for i in range(lines.shape[0]):
+        for j in range(lines.shape[1] - 1):
+            dx = lines[i, j + 1, 0] - lines[i, j, 0]
+            dy = lines[i, j + 1, 1] - lines[i, j, 1]
+            dz = lines[i, j + 1, 2] - lines[i, j, 2]
+            angles[i, j] = 2 * math.asin(min(math.sqrt(dx * dx + dy * dy + dz * dz) / 2, 1.0))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _breaks(lines, angles, median, spread):
+    """The larger of the share of known steps more than a factor `spread` from the median step and the share of
+    adjacent known step pairs that turn by more than 60° (torch's cosine similarity, its 1e-8 floor included)."""
+    known = jumps = pairs = turns = 0
+    for i in range(angles.shape[0]):
+        for j in range(angles.shape[1]):
+            if not np.isfinite(angles[i, j]):
+                continue
+            known += 1
+            if angles[i, j] > spread * median or angles[i, j] < median / spread:
+                jumps += 1
+            if j + 1 < angles.shape[1] and np.isfinite(angles[i, j + 1]):
+                pairs += 1
+                ax = lines[i, j + 1, 0] - lines[i, j, 0]
+                ay = lines[i, j + 1, 1] - lines[i, j, 1]
+                az = lines[i, j + 1, 2] - lines[i, j, 2]
+                bx = lines[i, j + 2, 0] - lines[i, j + 1, 0]
+                by = lines[i, j + 2, 1] - lines[i, j + 1, 1]
+                bz = lines[i, j + 2, 2] - lines[i, j + 1, 2]
+                norms = (ax * ax + ay * ay + az * az) * (bx * bx + by * by + bz * bz)
+                if (ax * bx + ay * by + az * bz) / math.sqrt(max(norms, 1e-16)) < 0.5:
+                    turns += 1
+    return max(jumps / known, turns / max(pairs, 1))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -130,9 +130,9 @@ def inspect_grid(cloud: torch.Tensor, shape: tuple[int, int], pitch: bool = True
     for balls: every row and every column must be a scan line (`scan_line_breaks`, a few ms) and, with `pitch`, the
     angle between adjacent rays must look like one sensor's (`ray_pitch`). Rays are the points' directions from the
     origin, which a range image's own geometry (depth edges, holes, noise along the ray) does not change."""
-    grid = cloud.view(*shape, 3)
+    rays = _GridRays(cloud.view(*shape, 3))
     for axis, lines in ((1, "rows"), (0, "columns")):
-        broken = scan_line_breaks(grid, axis)
+        broken = rays.breaks(axis)
         if broken is None:
             return GridCheck(False, None, f"too few neighbouring pixels with a return along its {lines} to tell")
         if broken > MAX_BROKEN_STEPS:
@@ -140,11 +140,11 @@ def inspect_grid(cloud: torch.Tensor, shape: tuple[int, int], pitch: bool = True
                              "not destaggered, column-major or shuffled order, or organized by a filter)")
     if not pitch:
         return GridCheck(True)
-    at_origin = _origin_share(grid)
+    at_origin = rays.origin_share()
     if at_origin > MAX_ORIGIN_SHARE:
         return GridCheck(True, None, f"{at_origin:.1%} of its pixels hold a point at the sensor's origin (zeros kept "
                          "as points, not returns)")
-    row, col = _pitch(grid, 0), _pitch(grid, 1)
+    row, col = rays.pitch(0), rays.pitch(1)
     if row is None or col is None:
         return GridCheck(True, None, "the angles between adjacent rays are not one sensor's (not in its frame)")
     return GridCheck(True, (row, col))
@@ -161,14 +161,50 @@ def compiled(device_type: str) -> bool:
     return device_type == "cpu"
 
 
+class _GridRays:
+    """The grid check's three measures of one (H, W, 3) grid: its scan-line breaks, its share of points at the origin
+    and its ray pitch. On a CPU the compiled kernels compute its unit rays once, counting the points at the origin in
+    the same pass, and all three read them (the same numbers as torch's: test_fused.py); on a GPU torch computes
+    each."""
+
+    def __init__(self, grid: torch.Tensor) -> None:
+        self.grid = grid
+        self.compiled = compiled(grid.device.type)
+        self._rays: tuple | None = None
+
+    def _unit_rays(self) -> tuple:
+        from . import fused
+
+        if self._rays is None:
+            self._rays = fused.unit_rays(self.grid.numpy())
+        return self._rays
+
+    def breaks(self, axis: int) -> float | None:
+        if not self.compiled:
+            return scan_line_breaks(self.grid, axis)
+        from . import fused
+
+        lines = _checked_lines(self.grid, axis).numpy()
+        return fused.scan_line_breaks(self._unit_rays()[0], axis, lines, SCAN_STEP_SPREAD)
+
+    def origin_share(self) -> float:
+        if not self.compiled:
+            return _origin_share(self.grid)
+        return self._unit_rays()[1] / max(self.grid.shape[0] * self.grid.shape[1], 1)
+
+    def pitch(self, axis: int) -> torch.Tensor | None:
+        if not self.compiled:
+            return ray_pitch(self.grid, axis)
+        from . import fused
+
+        stats = fused.chord_stats(self.grid.numpy(), axis, _PITCH_SAMPLES, self._unit_rays()[0])
+        return pitch_from_chords(stats)
+
+
 def _pitch(grid: torch.Tensor, axis: int) -> torch.Tensor | None:
     """`ray_pitch`, its chords measured by the compiled kernel on a CPU (the same numbers: test_fused.py), by torch on
     a GPU."""
-    if not compiled(grid.device.type):
-        return ray_pitch(grid, axis)
-    from . import fused
-
-    return pitch_from_chords(fused.chord_stats(grid.numpy(), axis, _PITCH_SAMPLES))
+    return _GridRays(grid).pitch(axis)
 
 
 def range_pitch(cloud: torch.Tensor, shape: tuple[int, int]) -> RangePitch | None:
@@ -183,9 +219,7 @@ def scan_line_breaks(grid: torch.Tensor, axis: int) -> float | None:
     leaves the line when its angle is not within a factor SCAN_STEP_SPREAD of the median step, or when it turns back
     (its direction more than 60° from the previous step's). A sensor's rows and columns have neither; a layout not in
     sensor order has many. None when fewer than 16 steps have a ray at both ends: too few to tell."""
-    across = 1 - axis  # the lines: a sample of them shows a layout's breaks, which repeat along every line
-    lines = torch.linspace(0, grid.shape[across] - 1, min(grid.shape[across], _CHECKED_LINES), device=grid.device)
-    rays = unit_rays(grid.index_select(across, lines.round().long().unique()))
+    rays = unit_rays(grid.index_select(1 - axis, _checked_lines(grid, axis)))
     a, b = rays.narrow(axis, 0, rays.shape[axis] - 1), rays.narrow(axis, 1, rays.shape[axis] - 1)
     step = b - a
     angle = 2 * torch.asin((step.norm(dim=-1) / 2).clamp(max=1.0))  # NaN where either ray is missing
@@ -199,6 +233,14 @@ def scan_line_breaks(grid: torch.Tensor, axis: int) -> float | None:
     pairs = known.narrow(axis, 0, known.shape[axis] - 1) & known.narrow(axis, 1, known.shape[axis] - 1)
     turns = pairs & (turn < 0.5)
     return max(float(jumps.sum()) / float(known.sum()), float(turns.sum()) / max(float(pairs.sum()), 1.0))
+
+
+def _checked_lines(grid: torch.Tensor, axis: int) -> torch.Tensor:
+    """The indices of the _CHECKED_LINES pixel lines (across `axis`, spread evenly) that `scan_line_breaks` reads: a
+    sample of them shows a layout's breaks, which repeat along every line."""
+    across = 1 - axis
+    lines = torch.linspace(0, grid.shape[across] - 1, min(grid.shape[across], _CHECKED_LINES), device=grid.device)
+    return lines.round().long().unique()
 
 
 def ray_pitch(grid: torch.Tensor, axis: int) -> torch.Tensor | None:
