@@ -3,12 +3,13 @@ whether it lies within the radius of another face, on frames eval never scores.
 
 Frames: the six close-range fold scenes of `simulation.fold_scenes`, seed 100 (eval scores seed 0), whole frames,
 hybrid with the given checkpoint, r = 5 cm. Each pixel is put in one group by the window survey's own cue (recorded
-from `hybrid.survey_and_cue` as the estimate runs): gated (both the z and the bend past the gate, the network
-answers), or left to the survey, split into away from edges and, near edges, by which of the two cues passed. For
-each group: its share of the valid pixels, the MSAE of the window survey's hybrid, of the ball survey's (`neighbours:
-kdtree`), and of the network alone (`learned`) on the near-edge groups; in brackets each group's part of the frames'
-MSAE. A missing normal counts as 90°. A second table gives, for the near-edge groups, the MSAE of PCA of the same
-windows, of PCA of the nearest 512 points (`pca`, k = 512, the KD-tree) and the share of windows over 400 points.
+from `hybrid.survey_and_cue` and `hybrid.survey_on_slope` as the estimate runs): gated (both the z and the bend past
+the gate in the first window or in the fitted one, the network answers), or left to the survey, split into away from
+edges and, near edges, by which of the two cues passed. For each group: its share of the valid pixels, the MSAE of
+the window survey's hybrid, of the ball survey's (`neighbours: kdtree`), and of the network alone (`learned`) on the
+near-edge groups; in brackets each group's part of the frames' MSAE. A missing normal counts as 90°. A second table
+gives, for the near-edge groups, the MSAE of PCA of the same windows, of PCA of the nearest 512 points (`pca`, k =
+512, the KD-tree) and the share of windows over 400 points.
 
 Run: .venv/bin/python docs/tools/fold_gap.py [--checkpoint lite]   (about 2 minutes on 2 quiet CPU cores)
 """
@@ -93,30 +94,40 @@ def main() -> None:
 
 
 def _record_cue() -> dict:
-    """The window survey's fit and cue of the last estimate, recorded by wrapping `hybrid.survey_and_cue`."""
+    """The window survey's fit and the cues its gate reads in the last estimate (the first windows' and the fitted
+    ones'), recorded by wrapping `hybrid.survey_and_cue` and `hybrid.survey_on_slope`."""
     cue: dict = {}
-    original = hybrid.survey_and_cue
+    first, fitted = hybrid.survey_and_cue, hybrid.survey_on_slope
 
     def recording(image, fit):
-        survey, structure = original(image, fit)
+        survey, structure = first(image, fit)
         cue.update(z=structure.z.numpy().copy(), bend=structure.bend.numpy().copy(), valid=fit.valid.numpy().copy())
         cue.update(normal=fit.normal.numpy().copy(), count=fit.count.numpy().copy())
         cue["box"] = [side.numpy().copy() for side in fit.box]
         return survey, structure
 
-    hybrid.survey_and_cue = recording
+    def recording_fitted(image, fit, survey, structure):
+        normal, sloped = fitted(image, fit, survey, structure)
+        cue.update(fitted_z=sloped.z.numpy().copy(), fitted_bend=sloped.bend.numpy().copy())
+        return normal, sloped
+
+    hybrid.survey_and_cue, hybrid.survey_on_slope = recording, recording_fitted
     return cue
 
 
 def _groups(cue: dict, near_edge: np.ndarray, gate: float, bend: float) -> dict[str, np.ndarray]:
-    """GROUPS as masks, by the window gate's own rule (`hybrid.window_hybrid`); thin windows take the pool path and
-    count with the survey's groups, as their answer is not the lattice's."""
+    """GROUPS as masks, by the window gate's own rule (`hybrid.window_hybrid`: either window's parts past both the z
+    and the bend); the near-edge pixels it leaves to the survey by which cue passed in either window (a pixel whose z
+    passed in one window and its bend in the other counts with "neither"); thin windows take the pool path and count
+    with the survey's groups, as their answer is not the lattice's."""
     top, bottom, left, right = cue["box"]
     thin = (bottom - top < PART_SPAN - 1) | (right - left < PART_SPAN - 1) | ~cue["valid"]
-    z, bent = cue["z"] > window_z(gate), cue["bend"] > bend
-    gated = ~thin & z & bent
+    z = [cue[name] > window_z(gate) for name in ("z", "fitted_z")]
+    bent = [cue[name] > bend for name in ("bend", "fitted_bend")]
+    gated = ~thin & ((z[0] & bent[0]) | (z[1] & bent[1]))
     near = ~gated & near_edge
-    z_only, bend_only = near & ~thin & z & ~bent, near & ~thin & ~z & bent
+    z_any, bent_any = z[0] | z[1], bent[0] | bent[1]
+    z_only, bend_only = near & ~thin & z_any & ~bent_any, near & ~thin & ~z_any & bent_any
     return {
         "gated": gated,
         "away from edges": ~gated & ~near_edge,

@@ -44,7 +44,7 @@ def _clouds() -> dict[str, np.ndarray]:
 
 
 @pytest.mark.parametrize("name", list(_clouds()))
-@pytest.mark.parametrize(("radius", "k"), [(0.15, 1), (0.15, 30), (0.35, 7), (0.35, 200), (10.0, 50)])
+@pytest.mark.parametrize(("radius", "k"), [(0.15, 1), (0.15, 30), (0.35, 7), (0.35, 200), (10.0, 50), (0.35, 512)])
 def test_answers_equal_a_brute_force(name: str, radius: float, k: int) -> None:
     points = _clouds()[name]
     rng = np.random.default_rng(1)
