@@ -33,7 +33,7 @@ GROUPS = (
     "away from edges",
     "near edges: z only",
     "near edges: bend only",
-    "near edges: neither (or a thin window)",
+    "near edges: neither, each in another window, or a thin window",
 )
 
 
@@ -133,7 +133,7 @@ def _groups(cue: dict, near_edge: np.ndarray, gate: float, bend: float) -> dict[
         "away from edges": ~gated & ~near_edge,
         "near edges: z only": z_only,
         "near edges: bend only": bend_only,
-        "near edges: neither (or a thin window)": near & ~z_only & ~bend_only,
+        "near edges: neither, each in another window, or a thin window": near & ~z_only & ~bend_only,
     }
 
 

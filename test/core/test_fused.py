@@ -181,7 +181,7 @@ def test_the_pitch_is_the_angle_between_adjacent_rays() -> None:
     ±0.1 rad, holes and a near wall included): the row pitch is 0.01 everywhere, and each column's is the angle between
     adjacent rays at the median row's elevation, 2·asin(cos(e)·sin(0.0025)) (the lower median of the rows that have
     both rays)."""
-    from triplet_normal_ros.core.organized import _pitch
+    from triplet_normal_ros.core.organized import _GridRays
 
     elevation = np.linspace(-0.1, 0.1, 21)
     azimuth = np.arange(200) * 0.005
@@ -190,7 +190,7 @@ def test_the_pitch_is_the_angle_between_adjacent_rays() -> None:
     ranges = np.where(a < 0.5, 4.0, 1.5) + 0.01 * np.sin(7 * a)  # a wall, a nearer one, some relief
     grid = rays * ranges[..., None]
     grid[3, 17] = grid[12, 150] = np.nan
-    rows, cols = (_pitch(torch.from_numpy(grid), axis).numpy() for axis in (0, 1))
+    rows, cols = (_GridRays(torch.from_numpy(grid)).pitch(axis).numpy() for axis in (0, 1))
     np.testing.assert_allclose(rows, 0.01, rtol=1e-5)
     per_row = 2 * np.arcsin(np.cos(elevation) * np.sin(0.0025))  # the angle a column step makes on each row
     paired = np.isfinite(grid[:, :-1, 0]) & np.isfinite(grid[:, 1:, 0])
@@ -201,13 +201,13 @@ def test_the_pitch_is_the_angle_between_adjacent_rays() -> None:
 @pytest.mark.parametrize("name", sorted(FRAMES))
 def test_the_compiled_pitch_is_the_torch_pitch(name: str) -> None:
     from triplet_normal_ros.core import fused
-    from triplet_normal_ros.core.organized import _PITCH_SAMPLES, _pitch, chord_stats, ray_pitch
+    from triplet_normal_ros.core.organized import _PITCH_SAMPLES, MIN_STEPS, _GridRays, chord_stats, ray_pitch
 
     points, shape = FRAMES[name][:2]
     for grid in (points.reshape(*shape, 3), points.reshape(*shape, 3) + np.array([0.0, 0.0, -1.3])):
         for axis in (0, 1):
             reference = chord_stats(torch.from_numpy(grid), axis)
-            compiled = fused.chord_stats(grid, axis, _PITCH_SAMPLES)
+            compiled = fused.chord_stats(grid, axis, _PITCH_SAMPLES, MIN_STEPS)
             if reference is None:
                 assert compiled is None
                 continue
@@ -217,6 +217,6 @@ def test_the_compiled_pitch_is_the_torch_pitch(name: str) -> None:
             torch.testing.assert_close(compiled[2], reference[2], rtol=1e-12, atol=0, equal_nan=True)
             pitch = ray_pitch(torch.from_numpy(grid), axis)
             if pitch is None:
-                assert _pitch(torch.from_numpy(grid), axis) is None
+                assert _GridRays(torch.from_numpy(grid)).pitch(axis) is None
             else:
-                torch.testing.assert_close(_pitch(torch.from_numpy(grid), axis), pitch, rtol=1e-6, atol=0)
+                torch.testing.assert_close(_GridRays(torch.from_numpy(grid)).pitch(axis), pitch, rtol=1e-6, atol=0)

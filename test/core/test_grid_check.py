@@ -9,10 +9,21 @@ import numpy as np
 import pytest
 import torch
 
+from triplet_normal_ros.core import fused
 from triplet_normal_ros.core.cloud import without_no_returns
 from triplet_normal_ros.core.conventions import LIDAR_RADIUS, LIDAR_RANGE_SCALE
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.organized import MAX_BROKEN_STEPS, MAX_ORIGIN_SHARE, inspect_grid, scan_line_breaks
+from triplet_normal_ros.core.organized import (
+    MAX_BROKEN_STEPS,
+    MAX_ORIGIN_SHARE,
+    MIN_STEPS,
+    SCAN_STEP_SPREAD,
+    SCAN_TURN_COS,
+    _checked_lines,
+    _origin_share,
+    inspect_grid,
+    scan_line_breaks,
+)
 from triplet_normal_ros.io.bags import InputBag, decode_cloud
 from triplet_normal_ros.io.pointcloud2 import read_xyz
 from triplet_normal_ros.simulation.depth_camera import depth_frame
@@ -139,9 +150,6 @@ def test_the_compiled_grid_check_measures_what_the_torch_one_does(layout: str, o
     """On a CPU the grid check reads compiled unit rays once for its three measures; each must be the torch one's:
     the scan-line breaks along both axes (real frames in sensor order and in each broken layout), and the count of
     points at the origin (a frame with zeros kept as points, and repeated points whose steps are zero)."""
-    from triplet_normal_ros.core import fused
-    from triplet_normal_ros.core.organized import SCAN_STEP_SPREAD, _checked_lines, _origin_share
-
     for points, shape in (ouster, kinect):
         cloud = points.copy() if layout == "sensor order" else LAYOUTS[layout](points, shape)
         cloud[::23] = 0.0  # zeros kept as points
@@ -151,7 +159,28 @@ def test_the_compiled_grid_check_measures_what_the_torch_one_does(layout: str, o
         assert at_origin == round(_origin_share(grid) * shape[0] * shape[1]) > 0
         for axis in (0, 1):
             reference = scan_line_breaks(grid, axis)
-            compiled = fused.scan_line_breaks(rays, axis, _checked_lines(grid, axis).numpy(), SCAN_STEP_SPREAD)
+            lines = _checked_lines(grid, axis).numpy()
+            compiled = fused.scan_line_breaks(rays, axis, lines, SCAN_STEP_SPREAD, SCAN_TURN_COS, MIN_STEPS)
             assert (compiled is None) == (reference is None)
             if reference is not None:
                 assert compiled == pytest.approx(reference, rel=1e-12, abs=1e-15), (axis, compiled, reference)
+
+
+def test_the_compiled_scan_line_check_agrees_with_torch_on_steps_too_short_to_have_a_direction() -> None:
+    """A fine-pitch scan (5e-5 rad between rays, a plane 2 m away) and a scan with near-duplicate points: steps under
+    1e-8 in length have no direction, and both checks count a pair with one as a turn (torch's cosine similarity floors
+    each step's length at 1e-8), so the CPU and a GPU trust or refuse the same grids."""
+    v, u = np.mgrid[0:60, 0:80].astype(np.float64)
+    fine = np.stack(((u - 40) * 5e-5, (v - 30) * 5e-5, np.ones_like(u)), axis=-1) * 2.0
+    doubled = np.stack(((u - 40) * 2e-3, (v - 30) * 2e-3, np.ones_like(u)), axis=-1)
+    doubled[:, 1::2] = doubled[:, 0:-1:2] + 1e-10  # every second pixel a hair from its neighbour
+    for grid, expected in ((fine, 0.0), (doubled, None)):
+        rays, _ = fused.unit_rays(grid)
+        for axis in (0, 1):
+            reference = scan_line_breaks(torch.from_numpy(grid), axis)
+            lines = _checked_lines(torch.from_numpy(grid), axis).numpy()
+            compiled = fused.scan_line_breaks(rays, axis, lines, SCAN_STEP_SPREAD, SCAN_TURN_COS, MIN_STEPS)
+            assert compiled == pytest.approx(reference, rel=1e-12, abs=1e-15), (axis, compiled, reference)
+            if expected is not None:
+                assert reference == expected
+    assert inspect_grid(torch.from_numpy(fine.reshape(-1, 3)), fine.shape[:2]).scan_lines

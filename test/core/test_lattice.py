@@ -134,7 +134,11 @@ def test_progress_counts_every_query_point_once(folds, lite) -> None:
 
 
 def test_levels_read_the_strides_at_the_call(monkeypatch) -> None:
-    assert lattice.levels() == ((lattice.STRIDE, lattice.AGREE_DEGREES), (4, lattice.COARSE_AGREE_DEGREES))
+    coarse = (lattice.COARSE_STRIDE, lattice.COARSE_AGREE_DEGREES)
+    assert lattice.levels() == ((lattice.STRIDE, lattice.AGREE_DEGREES), coarse)
+    monkeypatch.setattr(lattice, "COARSE_STRIDE", lattice.STRIDE + 1)
+    with pytest.raises(ValueError, match="not a multiple"):
+        lattice.levels()
     monkeypatch.setattr(lattice, "COARSE_STRIDE", lattice.STRIDE)
     assert lattice.levels() == ((lattice.STRIDE, lattice.AGREE_DEGREES),)
     monkeypatch.setattr(lattice, "STRIDE", 1)
@@ -143,9 +147,10 @@ def test_levels_read_the_strides_at_the_call(monkeypatch) -> None:
 
 def test_the_coarser_level_cuts_passes_on_a_real_frame_and_keeps_the_finer_levels_rule(lite, monkeypatch) -> None:
     """On a real Kinect frame, whose noise opens the gate over wide patches, the coarser level runs the network on
-    fewer pixels than the finer lattice alone. Without it, the finer lattice's pixels carry the network's own answers
-    (the rule one level down); with it, those off the coarser lattice may take their coarse neighbours' mean, which
-    moves them by at most the agreement angle from each of those neighbours' answers, and so little from their own."""
+    fewer pixels than the finer lattice alone, and the coarse lattice's pixels keep the network's own answers. Without
+    it, every pixel of the finer lattice carries the network's own answer; with it, those off the coarser lattice may
+    take their coarse neighbours' mean instead, which stays near their own answer (the neighbours agree within
+    COARSE_AGREE_DEGREES, and the network's answers change little over a few pixels of one surface)."""
     from triplet_normal_ros.ros.replay import load_frame
 
     stride, coarse_stride = lattice.STRIDE, lattice.COARSE_STRIDE

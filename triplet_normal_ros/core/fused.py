@@ -121,8 +121,8 @@ def warm() -> None:
     grid = np.stack(((u - 8) / 10, (v - 6) / 10, np.ones_like(u)), axis=-1)
     rays, _ = unit_rays(grid)
     for axis in (0, 1):
-        chord_stats(grid, axis, 1 << 16, rays)
-        scan_line_breaks(rays, axis, np.arange(grid.shape[1 - axis]), 4.0)
+        chord_stats(grid, axis, 1 << 16, 16, rays)
+        scan_line_breaks(rays, axis, np.arange(grid.shape[1 - axis]), 4.0, 0.5, 16)  # any rules compile it
     pitch = [np.full(12, 0.1, dtype=np.float32), np.full(16, 0.1, dtype=np.float32)]  # the grid's rays, 0.1 rad apart
     image = CompiledImage(torch.from_numpy(grid.reshape(-1, 3)), grid.shape[:2], tuple(map(torch.from_numpy, pitch)))
     image.pca(0.3, 0.1)
@@ -619,26 +619,29 @@ def unit_rays(grid: np.ndarray) -> tuple[np.ndarray, int]:
     return rays, int(at_origin.sum())
 
 
-def scan_line_breaks(rays: np.ndarray, axis: int, lines: np.ndarray, spread: float) -> float | None:
+def scan_line_breaks(
+    rays: np.ndarray, axis: int, lines: np.ndarray, spread: float, turn: float, least: int
+) -> float | None:
     """`organized.scan_line_breaks` compiled, from `unit_rays`, the indices of the pixel lines it reads (across `axis`)
-    and its SCAN_STEP_SPREAD: the larger of the shares of steps that jump and of step pairs that turn back, or None
-    when fewer than 16 steps have a ray at both ends."""
+    and its rules (passed in, as `organized` imports this module): the larger of the shares of steps more than a
+    factor `spread` from the median step and of step pairs whose cosine is under `turn`, or None when fewer than
+    `least` steps have a ray at both ends."""
     picked = np.ascontiguousarray(rays[lines] if axis == 1 else rays[:, lines].transpose(1, 0, 2))
     angles = np.full((picked.shape[0], max(picked.shape[1] - 1, 0)), np.nan)
     _line_angles(picked, angles)
     known = angles[np.isfinite(angles)]
-    if len(known) < 16:
+    if len(known) < least:
         return None
     median = float(np.partition(known, (len(known) - 1) // 2)[(len(known) - 1) // 2])  # torch.median's lower middle
-    return _breaks(picked, angles, median, spread)
+    return _breaks(picked, angles, median, spread, turn)
 
 
 def chord_stats(
-    grid: np.ndarray, axis: int, samples: int, rays: np.ndarray | None = None
+    grid: np.ndarray, axis: int, samples: int, least: int, rays: np.ndarray | None = None
 ) -> tuple[float, float, torch.Tensor] | None:
     """`organized.chord_stats` compiled: the 5 % and 95 % quantiles of the squared chords between adjacent unit rays
-    along `axis` (on at most `samples` of them) and each pixel line's lower median, or None when fewer than 16 pairs
-    have a ray at both ends. `rays`, the grid's `unit_rays` where the caller has them, saves their pass."""
+    along `axis` (on at most `samples` of them) and each pixel line's lower median, or None when fewer than `least`
+    pairs have a ray at both ends. `rays`, the grid's `unit_rays` where the caller has them, saves their pass."""
     if rays is None:
         rays, _ = unit_rays(grid)
     if axis == 0:
@@ -648,7 +651,7 @@ def chord_stats(
         chord2 = np.empty((rays.shape[0], rays.shape[1] - 1))
         _bands(_chords, rays.shape[0], rays, chord2, 0, 1)
     valid = chord2[np.isfinite(chord2)]
-    if len(valid) < 16:
+    if len(valid) < least:
         return None
     if len(valid) > samples:
         valid = valid[np.round(np.linspace(0, len(valid) - 1, samples)).astype(np.int64)]
@@ -702,9 +705,10 @@ def _line_angles(lines, angles):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _breaks(lines, angles, median, spread):
+def _breaks(lines, angles, median, spread, turn):
     """The larger of the share of known steps more than a factor `spread` from the median step and the share of
-    adjacent known step pairs that turn by more than 60° (torch's cosine similarity, its 1e-8 floor included)."""
+    adjacent known step pairs whose cosine is under `turn` (torch's cosine similarity: each step's length floored at
+    1e-8, so that steps too short to have a direction count as turns, as torch counts them)."""
     known = jumps = pairs = turns = 0
     for i in range(angles.shape[0]):
         for j in range(angles.shape[1]):
@@ -721,8 +725,10 @@ def _breaks(lines, angles, median, spread):
                 bx = lines[i, j + 2, 0] - lines[i, j + 1, 0]
                 by = lines[i, j + 2, 1] - lines[i, j + 1, 1]
                 bz = lines[i, j + 2, 2] - lines[i, j + 1, 2]
-                norms = (ax * ax + ay * ay + az * az) * (bx * bx + by * by + bz * bz)
-                if (ax * bx + ay * by + az * bz) / math.sqrt(max(norms, 1e-16)) < 0.5:
+                lengths = max(math.sqrt(ax * ax + ay * ay + az * az), 1e-8) * max(
+                    math.sqrt(bx * bx + by * by + bz * bz), 1e-8
+                )
+                if (ax * bx + ay * by + az * bz) / lengths < turn:
                     turns += 1
     return max(jumps / known, turns / max(pairs, 1))
 

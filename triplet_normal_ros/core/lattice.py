@@ -13,8 +13,8 @@ as accurate as the network on every gated pixel, at 40 % of its passes at 10° a
 The lattice's own pixels are answered the same way one level up: those off the coarser lattice (every COARSE_STRIDE-th
 row and column) take the mean of their gated coarse neighbours where those agree within the tighter
 COARSE_AGREE_DEGREES, else the network. A real depth camera's noise opens the gate on wide patches of a surface, where
-this halves the passes again; at folds the coarse neighbours disagree and the finer rule stands (docs/RESULTS.md,
-"The gate reads the fitted windows too").
+this cuts a quarter to two fifths of the passes; at folds the coarse neighbours disagree and the finer rule stands
+(docs/RESULTS.md, "The gate reads the fitted windows too").
 
 A pixel that takes its neighbours' mean never opens its own pool, so where that pool would have given no answer (it
 lies on one scan line) the pixel has the neighbours' network answer instead of the survey's; both are planes its
@@ -47,10 +47,13 @@ COARSE_AGREE_DEGREES = 7.5
 
 def levels() -> tuple[tuple[int, float], ...]:
     """The lattice levels, finest first, as (stride, agreement angle), read at the call: none at STRIDE 1 (the
-    network on every gated pixel), the coarser level only where COARSE_STRIDE exceeds STRIDE."""
+    network on every gated pixel), the coarser level only where COARSE_STRIDE exceeds STRIDE. A coarser stride must
+    be a multiple of STRIDE, so that the coarse lattice's pixels lie on the finer one."""
     if STRIDE <= 1:
         return ()
     if COARSE_STRIDE > STRIDE:
+        if COARSE_STRIDE % STRIDE:
+            raise ValueError(f"the coarser lattice's stride {COARSE_STRIDE} is not a multiple of {STRIDE}")
         return ((STRIDE, AGREE_DEGREES), (COARSE_STRIDE, COARSE_AGREE_DEGREES))
     return ((STRIDE, AGREE_DEGREES),)
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 #: (per-row pitch (H,), per-column pitch (W,)): the angle between adjacent pixel rays of a range image.
@@ -36,6 +37,10 @@ SCAN_STEP_SPREAD = 4.0
 #: about half of its column steps, and column-major order, shuffled rows and a filter's layout at 0.5-65 %
 #: (test/core/test_grid_check.py).
 MAX_BROKEN_STEPS = 0.001
+#: A step pair turns back where the cosine between the two steps is under this (the second turns by more than 60°).
+SCAN_TURN_COS = 0.5
+#: Fewer steps with a ray at both ends than this are too few to tell a scan line.
+MIN_STEPS = 16
 #: A range image's returns lie away from its sensor: where more than this share of its pixels hold a point at the
 #: origin (zeros a driver marks no-returns with, kept as points), windows would be cut around each of them, so the
 #: grid is not trusted for windows and the pool path answers the cloud.
@@ -164,15 +169,16 @@ def compiled(device_type: str) -> bool:
 class _GridRays:
     """The grid check's three measures of one (H, W, 3) grid: its scan-line breaks, its share of points at the origin
     and its ray pitch. On a CPU the compiled kernels compute its unit rays once, counting the points at the origin in
-    the same pass, and all three read them (the same numbers as torch's: test_fused.py); on a GPU torch computes
-    each."""
+    the same pass, and all three read them (the same numbers as torch's: test_grid_check.py, test_fused.py); on a GPU
+    torch computes each."""
 
     def __init__(self, grid: torch.Tensor) -> None:
         self.grid = grid
         self.compiled = compiled(grid.device.type)
-        self._rays: tuple | None = None
+        self._rays: tuple[np.ndarray, int] | None = None
 
-    def _unit_rays(self) -> tuple:
+    def _unit_rays(self) -> tuple[np.ndarray, int]:
+        """The compiled unit rays and the count of points at the origin, computed on first use."""
         from . import fused
 
         if self._rays is None:
@@ -180,31 +186,28 @@ class _GridRays:
         return self._rays
 
     def breaks(self, axis: int) -> float | None:
+        """`scan_line_breaks` along `axis`."""
         if not self.compiled:
             return scan_line_breaks(self.grid, axis)
         from . import fused
 
         lines = _checked_lines(self.grid, axis).numpy()
-        return fused.scan_line_breaks(self._unit_rays()[0], axis, lines, SCAN_STEP_SPREAD)
+        return fused.scan_line_breaks(self._unit_rays()[0], axis, lines, SCAN_STEP_SPREAD, SCAN_TURN_COS, MIN_STEPS)
 
     def origin_share(self) -> float:
+        """`_origin_share`: the share of pixels whose point sits exactly at the origin."""
         if not self.compiled:
             return _origin_share(self.grid)
         return self._unit_rays()[1] / max(self.grid.shape[0] * self.grid.shape[1], 1)
 
     def pitch(self, axis: int) -> torch.Tensor | None:
+        """`ray_pitch` along `axis`: the per-line pitch, or None when the angles are not one sensor's."""
         if not self.compiled:
             return ray_pitch(self.grid, axis)
         from . import fused
 
-        stats = fused.chord_stats(self.grid.numpy(), axis, _PITCH_SAMPLES, self._unit_rays()[0])
+        stats = fused.chord_stats(self.grid.numpy(), axis, _PITCH_SAMPLES, MIN_STEPS, self._unit_rays()[0])
         return pitch_from_chords(stats)
-
-
-def _pitch(grid: torch.Tensor, axis: int) -> torch.Tensor | None:
-    """`ray_pitch`, its chords measured by the compiled kernel on a CPU (the same numbers: test_fused.py), by torch on
-    a GPU."""
-    return _GridRays(grid).pitch(axis)
 
 
 def range_pitch(cloud: torch.Tensor, shape: tuple[int, int]) -> RangePitch | None:
@@ -224,14 +227,14 @@ def scan_line_breaks(grid: torch.Tensor, axis: int) -> float | None:
     step = b - a
     angle = 2 * torch.asin((step.norm(dim=-1) / 2).clamp(max=1.0))  # NaN where either ray is missing
     known = torch.isfinite(angle)
-    if int(known.sum()) < 16:
+    if int(known.sum()) < MIN_STEPS:
         return None
     median = angle[known].median()
     jumps = known & ((angle > SCAN_STEP_SPREAD * median) | (angle < median / SCAN_STEP_SPREAD))
     before, after = step.narrow(axis, 0, step.shape[axis] - 1), step.narrow(axis, 1, step.shape[axis] - 1)
     turn = torch.nn.functional.cosine_similarity(before, after, dim=-1)
     pairs = known.narrow(axis, 0, known.shape[axis] - 1) & known.narrow(axis, 1, known.shape[axis] - 1)
-    turns = pairs & (turn < 0.5)
+    turns = pairs & (turn < SCAN_TURN_COS)
     return max(float(jumps.sum()) / float(known.sum()), float(turns.sum()) / max(float(pairs.sum()), 1.0))
 
 
@@ -267,7 +270,7 @@ def chord_stats(grid: torch.Tensor, axis: int, samples: int = _PITCH_SAMPLES) ->
     step = rays.narrow(axis, 1, rays.shape[axis] - 1) - rays.narrow(axis, 0, rays.shape[axis] - 1)
     chord2 = step[..., 0] * step[..., 0] + step[..., 1] * step[..., 1] + step[..., 2] * step[..., 2]
     valid = chord2[torch.isfinite(chord2)]
-    if len(valid) < 16:
+    if len(valid) < MIN_STEPS:
         return None
     if len(valid) > samples:
         at = torch.linspace(0, len(valid) - 1, samples, dtype=torch.float64, device=valid.device)
