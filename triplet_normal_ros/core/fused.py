@@ -287,15 +287,15 @@ def _ranges(points, ranges, sums, lo, hi):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _moments_down(points, ranges, offset, table, lo, hi):
     """The first pass of the moment table, down columns lo..hi: running sums of 1, x, y, z, xx, xy, xz, yy, yz, zz of
-    each finite pixel's point minus `offset` (holes add nothing)."""
-    running = np.empty(10)
-    for c in range(lo, hi):
-        running[:] = 0.0
-        for r in range(points.shape[0]):
+    each finite pixel's point minus `offset` (holes add nothing). It walks the rows in memory order, each row's band
+    from the one above, so each column's sums are added in the same order as a walk down it, without its stride."""
+    for r in range(points.shape[0]):
+        for c in range(lo, hi):
+            row = table[r + 1, c + 1]
+            row[:] = table[r, c + 1]
             if np.isfinite(ranges[r, c]):
                 x, y, z = points[r, c, 0] - offset[0], points[r, c, 1] - offset[1], points[r, c, 2] - offset[2]
-                add_moments(running, x, y, z)
-            table[r + 1, c + 1, :] = running
+                add_moments(row, x, y, z)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
