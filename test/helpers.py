@@ -6,6 +6,7 @@ is plain data. The references the answers are checked against (plain PCA, exact 
 numpy, scipy and the simulation only.
 """
 
+import itertools
 import tracemalloc
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -25,6 +26,14 @@ from triplet_normal_ros.training.dataset import LabelledCloud, build_dataset
 
 #: A CAD shape of the validation catalogue: never trained on, so accuracy on it measures generalisation.
 HELDOUT_SHAPE = "v_notch_block"
+
+
+def multiply_adds(architecture: dict, k: int) -> int:
+    """A checkpoint's multiply-adds per patch, from its stored architecture (no scale head): each of the k points
+    through the encoder's Linear layers, then one latent through the regressor."""
+    encoder = [3, *architecture["encoder"]]
+    head = [encoder[-1], *architecture["regressor"], 3]
+    return k * sum(a * b for a, b in itertools.pairwise(encoder)) + sum(a * b for a, b in itertools.pairwise(head))
 
 
 def heldout_cad_cloud(n_points: int = 20_000, noise: float = 0.01, seed: int = 123) -> LabelledCloud:

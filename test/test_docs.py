@@ -454,7 +454,7 @@ def test_node_quotes_the_start_up_line_in_its_current_format() -> None:
     from triplet_normal_ros.core.plan import Plan
     from triplet_normal_ros.core.throughput import Throughput
 
-    line = Throughput(points_per_second=2400.0, network_share=0.07, plan=Plan("hybrid", "window", "kdtree", "lite"))
+    line = Throughput(points_per_second=2400.0, network_share=0.07, plan=Plan("hybrid", "window", "kdtree", "range"))
     text = line.describe("cpu")
     text = re.sub(r"about [\d,]+ points/s", "about N points/s", text)
     text = re.sub(r"~[\d.]+ s", "~T s", text)

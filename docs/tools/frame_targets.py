@@ -30,6 +30,7 @@ METHODS = {
     "pca, k = 500, KD-tree (the organized default before)": ({"method": "pca", "neighbours": "kdtree"}, True),
     "hybrid, default checkpoint, window survey": ({"method": "hybrid", "checkpoint": "default"}, True),
     "hybrid, lite, window survey": ({"method": "hybrid", "checkpoint": "lite"}, True),
+    "hybrid, range, window survey (the node's default on a CPU)": ({"method": "hybrid", "checkpoint": "range"}, True),
     "hybrid, default checkpoint, pool survey (before)": (
         {"method": "hybrid", "checkpoint": "default", "neighbours": "kdtree"},
         True,

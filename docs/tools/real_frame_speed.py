@@ -23,7 +23,8 @@ RADIUS = 0.05
 #: Each timed estimator: its label in the table -> its NormalEstimator options (radius and device are shared).
 METHODS = {
     "pca (window)": {"method": "pca"},
-    "hybrid, lite (the node's default on a CPU)": {"method": "hybrid", "checkpoint": "lite"},
+    "hybrid, range (the node's default on a CPU: range images get the range checkpoint)": {"method": "hybrid"},
+    "hybrid, lite": {"method": "hybrid", "checkpoint": "lite"},
     "hybrid, default checkpoint": {"method": "hybrid", "checkpoint": "default"},
 }
 

@@ -11,6 +11,7 @@ refusal to overwrite, resume after Ctrl-C (and its refusal to go on with other o
 
 from __future__ import annotations
 
+import argparse
 import re
 import signal
 import subprocess
@@ -311,6 +312,24 @@ def test_hybrid_matches_the_estimator(tmp_path: Path, capsys) -> None:
     estimator.estimate(read_xyz(msg), shape=SHAPE)
     assert estimator.last_run.network > 0  # the crease goes through the network, so the learned path is compared
     assert_normals_match(got, Record("/cam/points", CLOUD, 7, msg), method="hybrid", checkpoint="lite")
+
+
+def test_without_a_checkpoint_each_cloud_gets_the_nodes_choice_on_a_cpu(tmp_path: Path, capsys) -> None:
+    """No --checkpoint: the organized frame is answered by the range checkpoint and the unorganized cloud by lite, as
+    the node's estimator answers them, and the run's job records both."""
+    image = cloud(organized_points(*SHAPE), 42, height=SHAPE[0])
+    scattered = cloud(scattered_points(2000, seed=8), 43)
+    records = [Record("/cam/points", CLOUD, 7, image), Record("/cam/points", CLOUD, 8, scattered)]
+    source = write_bag(tmp_path / "in", "mcap", records)
+    options = ["--method", "hybrid", "--radius", str(RADIUS), "--device", "cpu", "--no-copy"]
+    run_ok(capsys, [source, tmp_path / "out", "--topic", "/cam/points", *options])
+    got = read_bag(tmp_path / "out")
+    for out, record, checkpoint in zip(got, records, ("range", "lite"), strict=True):
+        assert_normals_match(out, record, method="hybrid", checkpoint=checkpoint)
+    lite_answer, _ = expected(image, method="hybrid", checkpoint="lite")
+    assert not np.array_equal(lite_answer, expected(image, method="hybrid", checkpoint="range")[0], equal_nan=True)
+    chosen = argparse.Namespace(checkpoint=None, method="hybrid", device="cpu")
+    assert bag_command.checkpoints_in_force(chosen) == "range on range images, lite otherwise"  # what --resume compares
 
 
 def test_a_malformed_cloud_is_skipped_with_a_warning(tmp_path: Path, capsys) -> None:

@@ -4,10 +4,10 @@ shared); its accuracy is test/evaluation/test_lite_accuracy.py's job.
 """
 
 import dataclasses
-import itertools
 
 import numpy as np
 import pytest
+from helpers import multiply_adds
 
 from triplet_normal_ros.core.checkpoint import (
     SHIPPED,
@@ -22,13 +22,6 @@ from triplet_normal_ros.training.recipes import RECIPES, Recipe
 
 #: What docs/MODEL.md and docs/RESULTS.md state for the lite network.
 LITE_K, LITE_ENCODER, LITE_REGRESSOR = 64, [64, 64, 128, 256], [128, 64]
-
-
-def _multiply_adds(architecture: dict, k: int) -> int:
-    """Per patch: each of the k points through the encoder's Linear layers, then one latent through the regressor."""
-    encoder = [3, *architecture["encoder"]]
-    head = [encoder[-1], *architecture["regressor"], 3]
-    return k * sum(a * b for a, b in itertools.pairwise(encoder)) + sum(a * b for a, b in itertools.pairwise(head))
 
 
 def test_lite_is_shipped_and_resolves_by_name():
@@ -52,8 +45,8 @@ def test_lite_metadata_records_the_lite_recipe_and_conventions():
 
 def test_lite_is_at_least_five_times_cheaper_than_default():
     lite, default = read_metadata(resolve_checkpoint("lite")), read_metadata(resolve_checkpoint("default"))
-    lite_macs = _multiply_adds(lite["architecture"], lite["k"])
-    default_macs = _multiply_adds(default["architecture"], default["k"])
+    lite_macs = multiply_adds(lite["architecture"], lite["k"])
+    default_macs = multiply_adds(default["architecture"], default["k"])
     assert lite_macs == 2_937_024  # the figure docs/MODEL.md quotes (5.87 MFLOP)
     assert default_macs >= 5 * lite_macs
     lite_params = sum(p.numel() for p in load_checkpoint("lite")[0].parameters())

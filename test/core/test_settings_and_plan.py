@@ -69,6 +69,33 @@ def test_an_empty_checkpoint_means_the_devices_shipped_one_everywhere() -> None:
     assert make_plan(Settings(method="pca"), "cpu", False, False).checkpoint == ""
 
 
+def test_an_empty_checkpoint_means_the_range_checkpoint_on_a_cpus_range_images_only() -> None:
+    for method in ("learned", "hybrid"):
+        s = Settings(method=method)
+        assert make_plan(s, "cpu", organized=True, range_image=True).checkpoint == "range"
+        assert make_plan(s, "cpu", organized=True, range_image=False).checkpoint == "lite"  # a refused grid
+        assert make_plan(s, "cpu", organized=False, range_image=False).checkpoint == "lite"
+        assert make_plan(s, "cuda", organized=True, range_image=True).checkpoint == "default"
+        chosen = s.with_values(checkpoint="lite")
+        assert make_plan(chosen, "cpu", organized=True, range_image=True).checkpoint == "lite"  # a chosen one stays
+
+
+def test_one_estimator_runs_the_range_checkpoint_on_a_range_image_and_lite_on_other_clouds() -> None:
+    """Both shipped CPU checkpoints load once, and each cloud gets its plan's network with that checkpoint's k: the
+    range image's answer is the one an estimator built on the range checkpoint alone gives."""
+    estimator = NormalEstimator("learned", radius=0.1, device="cpu")
+    assert estimator.checkpoints == ("lite", "range")
+    assert (estimator.own_k(), estimator.own_k(range_image=True), estimator.k) == (64, 32, 64)
+    points = _plane_image()
+    image, _ = estimator.estimate(points, shape=(40, 50))
+    assert estimator.last_run.plan.checkpoint == "range"
+    cloud, _ = estimator.estimate(points)
+    assert estimator.last_run.plan.checkpoint == "lite"
+    one_k = NormalEstimator("learned", radius=0.1, device="cpu", checkpoint="range")
+    assert np.array_equal(image, one_k.estimate(points, shape=(40, 50))[0], equal_nan=True)
+    assert not np.array_equal(image, cloud, equal_nan=True)  # another network answered
+
+
 def test_the_window_runs_only_where_the_grid_is_a_range_image() -> None:
     for method in ("pca", "hybrid"):
         s = Settings(method=method)

@@ -1,5 +1,6 @@
 """The node as a user who changes nothing gets it: the default method (hybrid) on the machine's device (on a CPU the
-lite checkpoint and KD-tree pools, on a GPU the default checkpoint and pixel-grid pools), radius 0.05 m.
+range checkpoint on these range images and KD-tree pools, on a GPU the default checkpoint and pixel-grid pools),
+radius 0.05 m.
 
 The installed node runs with its default parameters and a short statistics period. Its answers are scored against
 the exact normals of simulated depth-camera views (a full 640x480 frame of a room, and a far wall), and against plain
@@ -69,11 +70,13 @@ def test_default_node_answers_a_full_depth_frame_near_its_exact_normals(client: 
     exact, edge = simulated.normals.reshape(-1, 3)[sample], simulated.near_edge.reshape(-1)[sample]
     pca, _ = ball_pca(points, sample, RADIUS)
     node = normals[sample]
-    # Measured (MSAE in rad², overall and at the 642 sampled pixels near an edge): the CPU's plan 0.00990 and 0.0753,
-    # the GPU's plan (run on a CPU) 0.00946 and 0.0719; plain PCA of the whole ball 0.0239 and 0.184, so the node
-    # scores 0.41 x and 0.41 x of it. A node answering with pca (its windows) scores 0.0343.
-    assert msae(node, exact) < 0.0115 and msae(node[edge], exact[edge]) < 0.087
-    assert msae(node, exact) < 0.48 * msae(pca, exact) and msae(node[edge], exact[edge]) < 0.48 * msae(
+    # Measured (MSAE in rad², overall and at the 642 sampled pixels near an edge): the CPU's plan (the range
+    # checkpoint on this range image) 0.01148 and 0.0879 (with lite 0.00990 and 0.0753: this frame is the one of the
+    # three held-out frames where range loses most, docs/RESULTS.md, "The range checkpoint"), the GPU's plan (run on a
+    # CPU) 0.00946 and 0.0719; plain PCA of the whole ball 0.0239 and 0.184, so the node scores 0.48 x of it, overall
+    # and near edges. A node answering with pca (its windows) scores 0.0343. Bounds: 1.15 x the measured.
+    assert msae(node, exact) < 0.0132 and msae(node[edge], exact[edge]) < 0.101
+    assert msae(node, exact) < 0.55 * msae(pca, exact) and msae(node[edge], exact[edge]) < 0.55 * msae(
         pca[edge], exact[edge]
     )
 

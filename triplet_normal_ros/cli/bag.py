@@ -106,7 +106,6 @@ def run(args: argparse.Namespace) -> int:
     checks.apply_params_file(args)
     check_options(args)
     check_paths(args.input, args.output)
-    resolve_checkpoint(args)
     try:
         with InputBag(args.input) as bag:
             _, summary = _convert(args, bag)
@@ -119,15 +118,15 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def resolve_checkpoint(args: argparse.Namespace) -> None:
-    """An absent --checkpoint means the node's: the shipped one for the device (`plan.checkpoint_for`), named once so
-    that every worker of `bags` loads the same one."""
-    if args.checkpoint is None and args.method != "pca":
-        from ..core.device import device_type
-        from ..core.plan import checkpoint_for
-        from ..core.settings import Settings
+def checkpoints_in_force(args: argparse.Namespace) -> str:
+    """The checkpoints the estimate loads where this runs, in words (`plan.checkpoints_in_words`): --checkpoint, or
+    without it the node's, the shipped ones for the device ('range on range images, lite otherwise' on a CPU)."""
+    from ..core.device import device_type
+    from ..core.plan import checkpoints_in_words
+    from ..core.settings import Settings
 
-        args.checkpoint = checkpoint_for(Settings(method=args.method, device=args.device), device_type(args.device))
+    chosen = Settings(method=args.method, checkpoint=args.checkpoint or "")
+    return checkpoints_in_words(chosen, device_type(args.device))
 
 
 def convert(args: argparse.Namespace, estimator=None) -> tuple[int, str]:
@@ -352,7 +351,7 @@ def _job(args: argparse.Namespace, bag, output_topic: str, storage: str) -> dict
         "method": args.method,
         "radius": args.radius,
         "k": args.k,
-        "checkpoint": args.checkpoint,
+        "checkpoint": checkpoints_in_force(args),
         "gate": args.gate,
         "bend": args.bend,
         "neighbours": args.neighbours,

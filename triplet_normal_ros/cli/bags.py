@@ -76,7 +76,6 @@ def run(args: argparse.Namespace) -> int:
     cluster.check_workers(args.workers, args.address)
     _check_dirs(args.input, args.output)
     jobs, finished = _plan(args)
-    bag.resolve_checkpoint(args)
     options = {k: v for k, v in vars(args).items() if k not in ("handler", "argv", "input", "output")}
     began = time.perf_counter()
     try:

@@ -23,7 +23,7 @@ def default_checkpoint_path() -> Path:
 
 
 #: Checkpoints shipped as package data, selectable by name wherever a path is accepted.
-SHIPPED = ("default", "lite")
+SHIPPED = ("default", "lite", "range")
 
 
 def shipped_checkpoint_path(name: str) -> Path:

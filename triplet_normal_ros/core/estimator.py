@@ -26,7 +26,7 @@ from .device import resolve_device
 from .frames import surface_variation
 from .hybrid import hybrid_kernel, window_hybrid
 from .kernels import CHUNK, PCA_CHUNK, Call, RunInfo, finish, learned_kernel, over_pools, pca_kernel
-from .plan import Plan, checkpoint_for, plan_cloud
+from .plan import Plan, checkpoint_for, checkpoints_for, plan_cloud
 from .search import ScanLines, open_search, search_radii
 from .settings import Settings
 from .windows import MomentImage
@@ -82,12 +82,15 @@ class NormalEstimator:
             self.device = resolve_device(settings.device)
         except ValueError as error:
             raise EstimatorError(str(error)) from None
-        self.model, self.metadata = None, {}
-        if settings.method != "pca":
-            self.model, self.metadata = load_checkpoint(checkpoint_for(settings, self.device.type), self.device)
-        #: The method's own k: the checkpoint's patch size, or PCA_DEFAULT_K for pca.
-        self.default_k = int(self.metadata.get("k", PCA_DEFAULT_K))
+        #: Every checkpoint the plan may choose, loaded once: an empty `checkpoint` can mean one for range images and
+        #: another for other clouds (`plan.checkpoints_for`).
+        names = checkpoints_for(settings, self.device.type)
+        self._models = {name: load_checkpoint(name, self.device) for name in names}
+        #: The model for any cloud that is not a range image (None for pca), and its metadata.
+        self.model, self.metadata = self._models.get(checkpoint_for(settings, self.device.type), (None, {}))
+        #: The method's own k on clouds that are not range images: its checkpoint's patch size, or PCA_DEFAULT_K.
         self._settings = settings
+        self.default_k = self.own_k()
         self._local = threading.local()
 
     @property
@@ -101,8 +104,19 @@ class NormalEstimator:
 
     @property
     def checkpoint(self) -> str:
-        """The checkpoint the model came from ('' for pca)."""
+        """The checkpoint for clouds that are not range images ('' for pca); `checkpoints` names every one."""
         return checkpoint_for(self._settings, self.device.type)
+
+    @property
+    def checkpoints(self) -> tuple[str, ...]:
+        """Every checkpoint an estimate may use, for other clouds first, then for range images where that differs."""
+        return tuple(self._models)
+
+    def own_k(self, range_image: bool = False) -> int:
+        """The method's own k for a range image or any other cloud: its checkpoint's patch size, or PCA_DEFAULT_K for
+        pca."""
+        name = checkpoint_for(self._settings, self.device.type, range_image)
+        return int(self._models[name][1]["k"]) if name else PCA_DEFAULT_K
 
     @property
     def last_run(self) -> RunInfo:
@@ -149,14 +163,16 @@ class NormalEstimator:
         points = _as_cloud(points)
         query = _as_query(query, len(points))
         s = self._settings if settings is None else self._own(settings)
-        call = Call(s, s.k or self.default_k, self.model, self.device, cancel=cancel)
-        call.timings = {} if timings is None else timings
-        if point_ids is not None:
-            call.ids = torch.from_numpy(_as_ids(point_ids, len(points))).to(self.device)
-        self._local.run = call.run  # the thread's last run, filled in as the call goes
+        ids = None if point_ids is None else _as_ids(point_ids, len(points))
         cloud = torch.from_numpy(_writable(np.ascontiguousarray(points, dtype=np.float64))).to(self.device)
         start = time.perf_counter()
         plan, pitch = plan_cloud(s, self.device, cloud, shape)
+        model, metadata = self._models.get(plan.checkpoint, (None, {}))
+        call = Call(s, s.k or int(metadata.get("k", PCA_DEFAULT_K)), model, self.device, cancel=cancel)
+        call.timings = {} if timings is None else timings
+        if ids is not None:
+            call.ids = torch.from_numpy(ids).to(self.device)
+        self._local.run = call.run  # the thread's last run, filled in as the call goes
         call.run.plan = plan
         # Measuring the range image's pitch belongs to the stage that reads it: the windows, or the searches.
         first = ("pca" if plan.kernel == "pca" else "survey") if plan.survey == "window" else "neighbours"

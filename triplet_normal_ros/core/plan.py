@@ -97,7 +97,8 @@ def make_plan(settings: Settings, device_type: str, organized: bool, range_image
     survey = "window" if window else ("none" if kernel == "learned" else "pool")
     search = "none" if window and kernel == "pca" else _pool_search(settings.neighbours, device_type, organized, grid)
     engine = "compiled" if window and compiled(device_type) else "torch"
-    return Plan(kernel, survey, search, checkpoint_for(settings, device_type), engine=engine, scan_lines=grid)
+    checkpoint = checkpoint_for(settings, device_type, range_image=grid)
+    return Plan(kernel, survey, search, checkpoint, engine=engine, scan_lines=grid)
 
 
 def _pool_search(neighbours: str, device_type: str, organized: bool, grid: bool) -> str:
@@ -109,11 +110,27 @@ def _pool_search(neighbours: str, device_type: str, organized: bool, grid: bool)
     return "voxel" if neighbours == "voxel" or on_gpu else "kdtree"
 
 
-def checkpoint_for(settings: Settings, device_type: str) -> str:
-    """The checkpoint the network methods load: the setting, or for an empty one the shipped one for the device."""
+def checkpoint_for(settings: Settings, device_type: str, range_image: bool = False) -> str:
+    """The checkpoint the network methods load for a cloud: the setting, or for an empty one the shipped one for the
+    device and for a range image or any other cloud (`defaults.shipped_checkpoint`)."""
     if settings.method == "pca":
         return ""
-    return str(settings.checkpoint) if settings.checkpoint else shipped_checkpoint(device_type)
+    return str(settings.checkpoint) if settings.checkpoint else shipped_checkpoint(device_type, range_image)
+
+
+def checkpoints_for(settings: Settings, device_type: str) -> tuple[str, ...]:
+    """Every checkpoint an estimate under `settings` may load on this device type: for any other cloud first, then for
+    a range image where that differs; none for pca."""
+    if settings.method == "pca":
+        return ()
+    names = (checkpoint_for(settings, device_type), checkpoint_for(settings, device_type, range_image=True))
+    return tuple(dict.fromkeys(names))
+
+
+def checkpoints_in_words(settings: Settings, device_type: str) -> str:
+    """`checkpoints_for` as logs and records name it: 'lite', or 'range on range images, lite otherwise'; '' for pca."""
+    names = checkpoints_for(settings, device_type)
+    return f"{names[1]} on range images, {names[0]} otherwise" if len(names) == 2 else "".join(names)
 
 
 def plan_cloud(

@@ -82,7 +82,8 @@ def range_estimators(
     """PCA at the k = 30 cap (Open3D's usual), PCA over the learned method's pool (through the KD-tree, so it stays
     that pool on a GPU too), PCA of the integral-image windows (what `pca` at its default k runs on an organized
     frame), learned, and hybrid (on these organized frames: the window survey); with the shipped default, also the
-    lite checkpoint learned and hybrid. Every one grows its ball with `range_scale`."""
+    lite and range checkpoints' learned and hybrid (range is a CPU's choice on these frames). Every one grows its
+    ball with `range_scale`."""
     from ..core.checkpoint import SHIPPED
 
     rows = _range_rows(checkpoint or "default", device, k, radius, SHIPPED)
@@ -106,12 +107,13 @@ def _range_rows(checkpoint, device: str, k: int | None, radius: float, shipped) 
         f"hybrid (F > {hybrid.gate:g}, bend > {hybrid.bend:g})": hybrid,
         "hybrid, ball survey": NormalEstimator("hybrid", radius=radius, checkpoint=checkpoint, device=device, **ball),
     }
-    if checkpoint == "default" and "lite" in shipped:
-        rows["learned, lite"] = NormalEstimator("learned", radius=radius, checkpoint="lite", device=device)
-        rows["hybrid, lite"] = NormalEstimator("hybrid", radius=radius, checkpoint="lite", device=device)
-        rows["hybrid, lite, ball survey"] = NormalEstimator(
-            "hybrid", radius=radius, checkpoint="lite", device=device, **ball
-        )
+    for other in ("lite", "range"):
+        if checkpoint == "default" and other in shipped:
+            rows[f"learned, {other}"] = NormalEstimator("learned", radius=radius, checkpoint=other, device=device)
+            rows[f"hybrid, {other}"] = NormalEstimator("hybrid", radius=radius, checkpoint=other, device=device)
+            rows[f"hybrid, {other}, ball survey"] = NormalEstimator(
+                "hybrid", radius=radius, checkpoint=other, device=device, **ball
+            )
     return rows
 
 

@@ -118,7 +118,7 @@ def stat_values(window: Window) -> KeyValues:
     )
 
 
-def settings_values(settings: NodeSettings, device: str, k: int, topics: tuple[str, str]) -> KeyValues:
+def settings_values(settings: NodeSettings, device: str, k: int | str, topics: tuple[str, str]) -> KeyValues:
     """What the node runs with: estimator settings, the device in use, the k in force, the resolved topics."""
     return (
         ("method", settings.method),

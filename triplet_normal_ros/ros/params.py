@@ -19,7 +19,7 @@ from typing import Any
 from ..core import defaults
 from ..core.conventions import PCA_DEFAULT_K
 from ..core.device import device_type
-from ..core.plan import checkpoint_for
+from ..core.plan import checkpoints_in_words
 from ..core.settings import Settings, reason
 from ..evaluation.visuals import MAX_SEGMENTS, VisualSettings, length_reason, stride_reason
 from ..pipeline.messages import MessageSettings, viewpoint_reason
@@ -74,8 +74,9 @@ SPECS: tuple[ParamSpec, ...] = (
         "checkpoint",
         str,
         defaults.CHECKPOINT,
-        "A .safetensors checkpoint for 'learned' and 'hybrid': a path, or a shipped name ('default', 'lite': 6.5x "
-        "fewer FLOPs, k = 64); empty means the shipped one for the device: 'default' on a GPU, 'lite' on a CPU.",
+        "A .safetensors checkpoint for 'learned' and 'hybrid': a path, or a shipped name ('default'; 'lite': 6.5x "
+        "fewer FLOPs, k = 64; 'range': 56x fewer, k = 32, for range images); empty means the shipped one for the "
+        "device: 'default' on a GPU; on a CPU 'range' for range images, 'lite' for other clouds.",
         None,
         accepted("checkpoint"),
     ),
@@ -232,10 +233,9 @@ class NodeSettings:
 
     def checkpoint_in_force(self) -> str:
         """The checkpoint the network methods load: the parameter, or for "" the shipped one for the device
-        (`plan.checkpoint_for`); '' for pca. Asks only for the device's type, so it names a GPU's checkpoint on a
-        machine without one too."""
-        chosen = Settings(method=self.method, checkpoint=self.checkpoint)
-        return checkpoint_for(chosen, device_type(self.device))
+        (`plan.checkpoints_in_words`: both, where range images get another one than other clouds, as on a CPU); ''
+        for pca. Asks only for the device's type, so it names a GPU's checkpoint on a machine without one too."""
+        return checkpoints_in_words(Settings(method=self.method, checkpoint=self.checkpoint), device_type(self.device))
 
     def estimator_settings(self) -> Settings:
         """The estimator's settings snapshot: k 0 becomes None (the method's own), "" stays the device's checkpoint."""

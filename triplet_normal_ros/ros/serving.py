@@ -97,9 +97,13 @@ def _failure(reason: str) -> SetParametersResult:
     return SetParametersResult(successful=False, reason=reason)
 
 
-def _k(estimator: NormalEstimator, settings: NodeSettings) -> int:
-    """The k in force: the parameter, or the estimator's own default (checkpoint or PCA) when it is 0."""
-    return estimator.default_k if settings.k == K_METHOD_DEFAULT else settings.k
+def _k(estimator: NormalEstimator, settings: NodeSettings) -> str:
+    """The k in force: the parameter, or the estimator's own default (checkpoint or PCA) when it is 0, for range
+    images and other clouds where their checkpoints differ ('32 on range images, 64 otherwise')."""
+    if settings.k != K_METHOD_DEFAULT:
+        return str(settings.k)
+    other, ranged = estimator.own_k(), estimator.own_k(range_image=True)
+    return str(other) if other == ranged else f"{ranged} on range images, {other} otherwise"
 
 
 def package_location() -> str:

@@ -108,6 +108,21 @@ RECIPES = {
         regressor_patches_per_shape=3000,
         val_patches_per_cloud=300,
     ),
+    # The range checkpoint, a CPU's network on range images: lite's training on a quarter of the patch (k = 32, a
+    # 128-point pool) and a 128-wide latent, with lite's training clouds plus 12 depth frames and 12 LiDAR scans. On
+    # depth frames it matches lite at a fraction of the pools, patches and network; on dense noisy clouds at large
+    # radii its small pool loses to lite's (docs/RESULTS.md, "The range checkpoint").
+    "range": Recipe(
+        residual=True,
+        loss="relative",
+        k=32,
+        encoder=[32, 64, 128],
+        regressor=[64, 32],
+        regressor_epochs=30,
+        regressor_patches_per_shape=3000,
+        val_patches_per_cloud=300,
+        range_frames=12,
+    ),
 }
 
 
