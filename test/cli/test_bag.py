@@ -329,7 +329,8 @@ def test_without_a_checkpoint_each_cloud_gets_the_nodes_choice_on_a_cpu(tmp_path
     lite_answer, _ = expected(image, method="hybrid", checkpoint="lite")
     assert not np.array_equal(lite_answer, expected(image, method="hybrid", checkpoint="range")[0], equal_nan=True)
     chosen = argparse.Namespace(checkpoint=None, method="hybrid", device="cpu")
-    assert bag_command.checkpoints_in_force(chosen) == "range on range images, lite otherwise"  # what --resume compares
+    # What the run's job records, and --resume compares:
+    assert bag_command.checkpoints_in_force(chosen) == "range on range images and lite otherwise"
 
 
 def test_a_malformed_cloud_is_skipped_with_a_warning(tmp_path: Path, capsys) -> None:

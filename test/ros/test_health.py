@@ -162,7 +162,7 @@ def test_settings_follow_the_figures_and_every_key_is_unique() -> None:
     assert (v["checkpoint"], v["input topic"], v["output topic"]) == (NOT_AVAILABLE, "/cam/points", "/cam/normals")
     on_cpu = NodeSettings(method="hybrid", device="cpu")
     on_gpu = NodeSettings(method="hybrid", device="cuda:0")
-    shipped = "range on range images, lite otherwise"  # the shipped ones for the device
+    shipped = "range on range images and lite otherwise"  # the shipped ones for the device
     assert dict(settings_values(on_cpu, "cpu", 64, ("a", "b")))["checkpoint"] == shipped
     assert dict(settings_values(on_gpu, "cuda:0", 128, ("a", "b")))["checkpoint"] == "default"
     chosen = NodeSettings(method="hybrid", device="cpu", checkpoint="default")

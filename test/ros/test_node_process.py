@@ -345,8 +345,10 @@ def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, insta
     shipped = install_prefix / "share" / PACKAGE / "config" / "params.yaml"
     node = start_node(shipped, {"input": "/tn_term/in", "output": "/tn_term/out"})
     assert node.wait_for_log("ready:", STARTUP_S), node.log
-    shipped = NodeSettings().checkpoint_in_force()  # the device's shipped checkpoint: lite on a CPU
+    shipped = NodeSettings().checkpoint_in_force()  # the device's shipped checkpoints: range and lite on a CPU
     assert f"method=hybrid, checkpoint={shipped}" in node.log  # the node's default method
+    own_k = "32 on range images and 64 otherwise" if "range" in shipped else "k=128,"  # each checkpoint's k
+    assert own_k in node.log
     rate = re.search(
         r"expected throughput on (\S+): about ([\d,]+) points/s \(~([\d.]+) s for a full 640x480", node.log
     )

@@ -133,7 +133,7 @@ def test_estimator_args_map_the_empty_defaults_to_the_methods_and_the_devices() 
     assert args["k"] is None and args["method"] == "pca"
     assert NodeSettings(k=64, checkpoint="/x").estimator_args()["k"] == 64
     assert NodeSettings(device="cpu").estimator_args()["checkpoint"] == ""  # the device's shipped one
-    assert NodeSettings(device="cpu").checkpoint_in_force() == "range on range images, lite otherwise"
+    assert NodeSettings(device="cpu").checkpoint_in_force() == "range on range images and lite otherwise"
     assert NodeSettings(device="cuda").checkpoint_in_force() == "default"
     assert NodeSettings(device="cpu", checkpoint="default").checkpoint_in_force() == "default"
 

@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
 
 def checkpoints_in_force(args: argparse.Namespace) -> str:
     """The checkpoints the estimate loads where this runs, in words (`plan.checkpoints_in_words`): --checkpoint, or
-    without it the node's, the shipped ones for the device ('range on range images, lite otherwise' on a CPU)."""
+    without it the node's, the shipped ones for the device ('range on range images and lite otherwise' on a CPU)."""
     from ..core.device import device_type
     from ..core.plan import checkpoints_in_words
     from ..core.settings import Settings

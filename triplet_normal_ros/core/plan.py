@@ -128,9 +128,10 @@ def checkpoints_for(settings: Settings, device_type: str) -> tuple[str, ...]:
 
 
 def checkpoints_in_words(settings: Settings, device_type: str) -> str:
-    """`checkpoints_for` as logs and records name it: 'lite', or 'range on range images, lite otherwise'; '' for pca."""
+    """`checkpoints_for` as logs and records name it: 'lite', or 'range on range images and lite otherwise'; '' for
+    pca."""
     names = checkpoints_for(settings, device_type)
-    return f"{names[1]} on range images, {names[0]} otherwise" if len(names) == 2 else "".join(names)
+    return f"{names[1]} on range images and {names[0]} otherwise" if len(names) == 2 else "".join(names)
 
 
 def plan_cloud(

@@ -99,11 +99,11 @@ def _failure(reason: str) -> SetParametersResult:
 
 def _k(estimator: NormalEstimator, settings: NodeSettings) -> str:
     """The k in force: the parameter, or the estimator's own default (checkpoint or PCA) when it is 0, for range
-    images and other clouds where their checkpoints differ ('32 on range images, 64 otherwise')."""
+    images and other clouds where their checkpoints differ ('32 on range images and 64 otherwise')."""
     if settings.k != K_METHOD_DEFAULT:
         return str(settings.k)
     other, ranged = estimator.own_k(), estimator.own_k(range_image=True)
-    return str(other) if other == ranged else f"{ranged} on range images, {other} otherwise"
+    return str(other) if other == ranged else f"{ranged} on range images and {other} otherwise"
 
 
 def package_location() -> str:
