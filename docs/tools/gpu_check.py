@@ -80,7 +80,7 @@ def cmd_probe(args: argparse.Namespace) -> int:
 
 # -- compare --------------------------------------------------------------------------------------------------------
 
-#: The network methods with the checkpoint both devices load (an empty one would mean lite on the CPU).
+#: The network methods with the checkpoint both devices load (an empty one would mean lite or range on the CPU).
 LEARNED, HYBRID = {"method": "learned", "checkpoint": "default"}, {"method": "hybrid", "checkpoint": "default"}
 #: (what, estimator options, CPU search, device search, same neighbourhood on both).
 COMPARISONS = (

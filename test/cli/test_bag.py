@@ -55,6 +55,7 @@ from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.orientation import orient_towards_viewpoint
 from triplet_normal_ros.io import bag_output
 from triplet_normal_ros.io.bag_output import partial_path
+from triplet_normal_ros.io.bags import InputBag
 from triplet_normal_ros.io.pointcloud2 import read_field, read_xyz
 from triplet_normal_ros.ros.params import NodeSettings
 
@@ -328,9 +329,12 @@ def test_without_a_checkpoint_each_cloud_gets_the_nodes_choice_on_a_cpu(tmp_path
         assert_normals_match(out, record, method="hybrid", checkpoint=checkpoint)
     lite_answer, _ = expected(image, method="hybrid", checkpoint="lite")
     assert not np.array_equal(lite_answer, expected(image, method="hybrid", checkpoint="range")[0], equal_nan=True)
-    chosen = argparse.Namespace(checkpoint=None, method="hybrid", device="cpu")
-    # What the run's job records, and --resume compares:
-    assert bag_command.checkpoints_in_force(chosen) == "range on range images and lite otherwise"
+    fields = ("topic", "no_copy", "radius", "k", "gate", "bend", "neighbours", "no_orient", "keep_zeros", "range_scale")
+    chosen = argparse.Namespace(input=source, checkpoint=None, method="hybrid", device="cpu", start=None, end=None,
+                                limit=None, viewpoint=(0.0, 0.0, 0.0), **dict.fromkeys(fields))  # fmt: skip
+    with InputBag(source) as opened:
+        job = bag_command._job(chosen, opened, "/n", "mcap")  # what the run records, and --resume compares
+    assert job["checkpoint"] == "range on range images and lite otherwise"
 
 
 def test_a_malformed_cloud_is_skipped_with_a_warning(tmp_path: Path, capsys) -> None:

@@ -61,7 +61,7 @@ def test_the_estimator_defaults_are_the_nodes() -> None:
     assert estimator.checkpoint == defaults.shipped_checkpoint("cpu") == "lite"
 
 
-def test_an_empty_checkpoint_means_the_devices_shipped_one_everywhere() -> None:
+def test_an_empty_checkpoint_means_the_devices_shipped_one_on_unorganized_clouds() -> None:
     for device in ("cpu", "cuda"):
         for empty in ("", None):
             plan = make_plan(Settings(method="hybrid", checkpoint=empty), device, organized=False, range_image=False)
@@ -94,6 +94,28 @@ def test_one_estimator_runs_the_range_checkpoint_on_a_range_image_and_lite_on_ot
     one_k = NormalEstimator("learned", radius=0.1, device="cpu", checkpoint="range")
     assert np.array_equal(image, one_k.estimate(points, shape=(40, 50))[0], equal_nan=True)
     assert not np.array_equal(image, cloud, equal_nan=True)  # another network answered
+
+
+def test_only_a_grid_trusted_as_a_range_image_gets_the_range_checkpoint() -> None:
+    """Plans that read no grid still check the whole grid before choosing the range image's network: with 5 % of the
+    pixels at the origin (zeros kept as points) the image is refused, and lite answers it, whatever the search."""
+    points = _plane_image()
+    zeros = points.copy()
+    zeros[::20] = 0.0
+    for method, neighbours in (("learned", "auto"), ("hybrid", "kdtree"), ("hybrid", "auto")):
+        estimator = NormalEstimator(method, radius=0.1, device="cpu", neighbours=neighbours)
+        estimator.estimate(points, shape=(40, 50))
+        assert estimator.last_run.plan.checkpoint == "range", (method, neighbours)
+        estimator.estimate(zeros, shape=(40, 50))
+        plan = estimator.last_run.plan
+        assert plan.checkpoint == "lite" and "origin" in plan.note, (method, neighbours, plan)
+
+
+def test_a_call_may_not_bring_settings_that_need_a_network_it_did_not_load() -> None:
+    estimator = NormalEstimator("learned", radius=0.1, device="cpu", checkpoint="lite")
+    empty = estimator.settings.with_values(checkpoint="")  # lite too on other clouds, but range on range images
+    with pytest.raises(EstimatorError, match="choose the model"):
+        estimator.estimate(_plane_image(), shape=(40, 50), settings=empty)
 
 
 def test_the_window_runs_only_where_the_grid_is_a_range_image() -> None:

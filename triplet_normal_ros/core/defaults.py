@@ -17,8 +17,9 @@ CHECKPOINT = ""
 SHIPPED_FOR_DEVICE = {"cuda": "default", "cpu": "lite"}
 #: ... except on a range image (an organized cloud whose grid is trusted, `plan.make_plan`), by device type: on a CPU
 #: the range checkpoint, trained with depth frames and LiDAR scans on a quarter of the default's patch, which answers
-#: range images as accurately as lite in about half the time; on the dense, noisy clouds of the validation set its
-#: 128-point pool loses to lite's 256 (docs/RESULTS.md, "The range checkpoint"), so every other cloud keeps lite.
+#: range images in about half lite's time, within a few per cent of its error (more on room frames, less at folds);
+#: on the dense, noisy clouds of the validation set its 128-point pool loses to lite's 256 (docs/RESULTS.md, "The
+#: range checkpoint"), so every other cloud keeps lite.
 SHIPPED_FOR_RANGE_IMAGES = {"cpu": "range"}
 DEVICE = "auto"
 #: Patches per forward pass; also bounds the cancel latency on a CPU.

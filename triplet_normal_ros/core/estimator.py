@@ -230,7 +230,8 @@ class NormalEstimator:
         return settings
 
     def _model_key(self, settings: Settings) -> tuple:
-        return settings.method, checkpoint_for(settings, self.device.type), resolve_device(settings.device)
+        """What chooses the loaded models: the method, every checkpoint the plan may pick, the device."""
+        return settings.method, checkpoints_for(settings, self.device.type), resolve_device(settings.device)
 
     radius = _setting("radius", "The ball radius in metres.")
     range_scale = _setting("range_scale", "The ball grows to max(radius, range_scale × range); 0 keeps it fixed.")

@@ -139,17 +139,20 @@ def plan_cloud(
 ) -> tuple[Plan, RangePitch | None]:
     """The plan for `cloud` (N, 3) on `device`, and the range image's pitch when the plan reads the grid. An organized
     cloud's grid is inspected (`organized.inspect_grid`): its scan lines always, its pitch when the plan would read
-    the grid. A grid that is not a range image gets the pool path, and the plan's `note` says why."""
+    the grid or would choose another checkpoint for a range image (`checkpoint_for`), so that only a grid trusted
+    as a range image gets the range image's network. A grid that is not a range image gets the pool path, and the
+    plan's `note` says why."""
     organized = is_organized(shape, len(cloud))
     hopeful = make_plan(settings, device.type, organized, range_image=organized)
     if not organized:
         return hopeful, None
-    check = inspect_grid(cloud, shape, pitch=hopeful.uses_range_image)
+    other_network = hopeful.checkpoint != checkpoint_for(settings, device.type)
+    check = inspect_grid(cloud, shape, pitch=hopeful.uses_range_image or other_network)
     if check.reason:
         note = f"the {shape[0]}x{shape[1]} organized cloud is not a range image: {check.reason}; pools instead"
         plan = make_plan(settings, device.type, organized, range_image=False)
         return replace(plan, scan_lines=check.scan_lines, note=note), None
-    return hopeful, check.pitch
+    return hopeful, check.pitch if hopeful.uses_range_image else None
 
 
 #: The clouds `plan_table` covers: (label, organized, range image).

@@ -110,8 +110,8 @@ RECIPES = {
     ),
     # The range checkpoint, a CPU's network on range images: lite's training on a quarter of the patch (k = 32, a
     # 128-point pool) and a 128-wide latent, with lite's training clouds plus 12 depth frames and 12 LiDAR scans. On
-    # depth frames it matches lite at a fraction of the pools, patches and network; on dense noisy clouds at large
-    # radii its small pool loses to lite's (docs/RESULTS.md, "The range checkpoint").
+    # depth frames it is within a few per cent of lite's error at a fraction of its pools, patches and network; on
+    # dense noisy clouds at large radii its small pool loses to lite's (docs/RESULTS.md, "The range checkpoint").
     "range": Recipe(
         residual=True,
         loss="relative",
