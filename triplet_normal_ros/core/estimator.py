@@ -88,8 +88,8 @@ class NormalEstimator:
         self._models = {name: load_checkpoint(name, self.device) for name in names}
         #: The model for any cloud that is not a range image (None for pca), and its metadata.
         self.model, self.metadata = self._models.get(checkpoint_for(settings, self.device.type), (None, {}))
-        #: The method's own k on clouds that are not range images: its checkpoint's patch size, or PCA_DEFAULT_K.
         self._settings = settings
+        #: The method's own k on clouds that are not range images: its checkpoint's patch size, or PCA_DEFAULT_K.
         self.default_k = self.own_k()
         self._local = threading.local()
 

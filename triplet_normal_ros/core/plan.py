@@ -131,7 +131,13 @@ def checkpoints_in_words(settings: Settings, device_type: str) -> str:
     """`checkpoints_for` as logs and records name it: 'lite', or 'range on range images and lite otherwise'; '' for
     pca."""
     names = checkpoints_for(settings, device_type)
-    return f"{names[1]} on range images and {names[0]} otherwise" if len(names) == 2 else "".join(names)
+    return per_kind(names[0], names[-1]) if names else ""
+
+
+def per_kind(other: object, ranged: object) -> str:
+    """A value that may differ between range images and other clouds, in words: 'lite' where both are the same, else
+    'range on range images and lite otherwise'."""
+    return str(other) if other == ranged else f"{ranged} on range images and {other} otherwise"
 
 
 def plan_cloud(

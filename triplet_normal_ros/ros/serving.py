@@ -30,6 +30,7 @@ from sensor_msgs.msg import PointCloud2
 
 from ..core import throughput
 from ..core.estimator import NormalEstimator
+from ..core.plan import per_kind
 from ..errors import CheckpointError, CloudFormatError, EstimationCancelled, EstimatorError
 from ..pipeline.messages import answer_message
 from . import diagnostics
@@ -102,8 +103,7 @@ def _k(estimator: NormalEstimator, settings: NodeSettings) -> str:
     images and other clouds where their checkpoints differ ('32 on range images and 64 otherwise')."""
     if settings.k != K_METHOD_DEFAULT:
         return str(settings.k)
-    other, ranged = estimator.own_k(), estimator.own_k(range_image=True)
-    return str(other) if other == ranged else f"{ranged} on range images and {other} otherwise"
+    return per_kind(estimator.own_k(), estimator.own_k(range_image=True))
 
 
 def package_location() -> str:
