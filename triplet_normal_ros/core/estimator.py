@@ -115,8 +115,11 @@ class NormalEstimator:
     def own_k(self, range_image: bool = False) -> int:
         """The method's own k for a range image or any other cloud: its checkpoint's patch size, or PCA_DEFAULT_K for
         pca."""
-        name = checkpoint_for(self._settings, self.device.type, range_image)
-        return int(self._models[name][1]["k"]) if name else PCA_DEFAULT_K
+        return self._k_of(checkpoint_for(self._settings, self.device.type, range_image))
+
+    def _k_of(self, checkpoint: str) -> int:
+        """The patch size of a loaded checkpoint, or PCA_DEFAULT_K for none (pca)."""
+        return int(self._models[checkpoint][1]["k"]) if checkpoint else PCA_DEFAULT_K
 
     @property
     def last_run(self) -> RunInfo:
@@ -167,8 +170,8 @@ class NormalEstimator:
         cloud = torch.from_numpy(_writable(np.ascontiguousarray(points, dtype=np.float64))).to(self.device)
         start = time.perf_counter()
         plan, pitch = plan_cloud(s, self.device, cloud, shape)
-        model, metadata = self._models.get(plan.checkpoint, (None, {}))
-        call = Call(s, s.k or int(metadata.get("k", PCA_DEFAULT_K)), model, self.device, cancel=cancel)
+        model = self._models[plan.checkpoint][0] if plan.checkpoint else None
+        call = Call(s, s.k or self._k_of(plan.checkpoint), model, self.device, cancel=cancel)
         call.timings = {} if timings is None else timings
         if ids is not None:
             call.ids = torch.from_numpy(ids).to(self.device)
