@@ -8,8 +8,10 @@ go to the repository's git-ignored ``.cache/``, never under $HOME. ``slow`` mark
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -30,6 +32,9 @@ PACKAGE = "triplet_normal_ros"
 #: must not fail because the machine was busy.
 STARTUP_S = 300.0
 COLCON = Path(sys.executable).with_name("colcon")
+#: How long a test's node gets to exit on SIGINT when the test is done with it (it promises 2 s; the rest is room for a
+#: loaded machine) before it is killed.
+CLOSE_S = 30.0
 #: Where the tests keep what they cache between runs: inside the repository, git-ignored (.gitignore has .cache/).
 TEST_CACHE = REPO / ".cache"
 
@@ -49,8 +54,9 @@ _PROFILE_SET_HERE: list[str] = []
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Register ``slow``; redirect the caches. This runs before collection, which a session fixture would not:
-    matplotlib reads MPLCONFIGDIR once, at import, and test modules import it at collection time."""
+    """Register ``slow``; redirect the caches; release what killed DDS processes left in shared memory. This runs
+    before collection, which a session fixture would not: matplotlib reads MPLCONFIGDIR once, at import, and test
+    modules import it at collection time."""
     config.addinivalue_line(
         "markers",
         "slow: colcon builds, node processes, training runs, accuracy checks of the shipped checkpoint, eval --quick "
@@ -67,10 +73,56 @@ def pytest_configure(config: pytest.Config) -> None:
         if name in environ and name not in os.environ:
             _ENV_PATCH.setenv(name, environ[name])
             _PROFILE_SET_HERE.append(environ[name])
+    release_dead_segments()
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
     _ENV_PATCH.undo()
+    release_dead_segments()
+
+
+#: Where Fast DDS keeps a participant's shared-memory transport on Linux: a segment file per participant (fastdds_ on
+#: Fast DDS 3, fastrtps_ on 2.x, so Jazzy) beside an ``_el`` lock file that the owner holds while it lives.
+SHM_DIR = Path("/dev/shm")
+_SEGMENT = re.compile(r"fast(dds|rtps)_[0-9a-f]{16}")
+
+
+def shm_segments(pid: int) -> set[Path]:
+    """The Fast DDS segments process `pid` owns (it holds their lock files): what its orderly exit must remove from
+    /dev/shm. A process also maps its peers' segments, which are not its to remove."""
+    held = set()
+    for line in Path("/proc/locks").read_text().splitlines():
+        fields = line.split()  # "1: FLOCK  ADVISORY  WRITE <pid> <major>:<minor>:<inode> 0 EOF"
+        if len(fields) > 5 and fields[1] == "FLOCK" and fields[4] == str(pid):
+            held.add(int(fields[5].rsplit(":", 1)[1]))
+    locks = SHM_DIR.glob("fast*_el") if SHM_DIR.is_dir() else ()
+    return {
+        lock.with_name(lock.name[:-3]) for lock in locks if _SEGMENT.fullmatch(lock.name[:-3]) and _inode(lock) in held
+    }
+
+
+def _inode(path: Path) -> int | None:
+    try:
+        return path.stat().st_ino
+    except OSError:  # removed since it was listed
+        return None
+
+
+def release_dead_segments() -> None:
+    """Remove the segments of processes that died without shutting DDS down, as ``fastdds shm clean`` does: a
+    segment whose lock file nobody holds has no owner. The tests kill node processes on purpose, and each such
+    segment is 35 MB with the shipped large-data profile, in a tmpfs that counts as used memory (Ray's memory monitor
+    starts killing workers at 95 %). Segments of live processes, this run's or anyone's, are left alone."""
+    for lock in SHM_DIR.glob("fast*_el") if SHM_DIR.is_dir() else ():
+        if not _SEGMENT.fullmatch(lock.name[:-3]):
+            continue
+        try:
+            with lock.open("ab") as held:
+                fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:  # held by a live participant (or already gone)
+            continue
+        lock.with_name(lock.name[:-3]).unlink(missing_ok=True)
+        lock.unlink(missing_ok=True)
 
 
 @pytest.fixture(scope="session")
@@ -178,9 +230,13 @@ class NodeProcess:
         return code, time.monotonic() - start
 
     def close(self) -> None:
+        """Stop the node as Ctrl-C would, which also removes its DDS shared-memory segment; kill it only if it is
+        still running CLOSE_S later."""
         if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(10)
+            code, _ = self.stop(signal.SIGINT, timeout=CLOSE_S)
+            if code is None:
+                self.proc.kill()
+                self.proc.wait(10)
         self._log.close()
 
 

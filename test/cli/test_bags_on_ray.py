@@ -249,6 +249,22 @@ def _descendants(root: int) -> list[int]:
     return found
 
 
+def test_a_worker_the_memory_monitor_kills_is_one_line_that_says_so(tmp_path: Path) -> None:
+    """Ray kills workers once the machine's memory passes its threshold; here the threshold is set below what any
+    worker needs, so every start of the worker is killed and the bag fails after Ray's retries, in one line that
+    says what happened and which setting moves the line (Ray's own message ends in advice that never says it)."""
+    root = tmp_path / "in"
+    source = write_bag(root / "one", "mcap", records(1))
+    env = {**os.environ, "RAY_memory_usage_threshold": "0.001", "RAY_memory_monitor_refresh_ms": "100"}
+    command = [str(BIN / "triplet-normal"), "bags", str(root), str(tmp_path / "out"), "--workers", "1", *OPTIONS]
+    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 1, done.stderr
+    (line,) = [line for line in done.stderr.splitlines() if line.startswith("triplet-normal: error:")]
+    assert line.startswith(f"triplet-normal: error: {source}: Ray's memory monitor killed the worker: "), line
+    assert re.search(r"memory was [\d.]+GB used / [\d.]+GB limit, over Ray's 0\.1 % threshold", line), line
+    assert "RAY_memory_usage_threshold" in line and "Refer to the documentation" not in line
+
+
 def test_an_unreachable_address_is_one_line_and_exit_1(tmp_path: Path, capsys) -> None:
     root = tmp_path / "in"
     write_bag(root / "one", "mcap", records(1))

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import STARTUP_S, NodeProcess
+from conftest import STARTUP_S, NodeProcess, shm_segments
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from probe_client import ProbeClient, cropped
@@ -105,9 +105,11 @@ def test_every_transition_through_the_lifecycle_services(start_node) -> None:
         assert probe.change(Transition.TRANSITION_ACTIVATE)
         assert probe.state() == "active"
         assert _has_normals(_answer(probe, frame)), node.log[-3000:]
-        # shutdown: the transition is answered, then the process exits 0.
+        # shutdown: the transition is answered, then the process exits 0, its DDS shared memory released.
+        segments = shm_segments(node.proc.pid)
         assert probe.change(Transition.TRANSITION_ACTIVE_SHUTDOWN)
     code = node.proc.wait(WAIT_S)
+    assert segments and not [path for path in segments if path.exists()], segments
     assert code == 0, node.log[-3000:]
     for line in ("configured: method=pca", f"active: {IN} -> {OUT}", "inactive:", "the estimator is released"):
         assert line in node.log, line

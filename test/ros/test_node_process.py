@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import PACKAGE, STARTUP_S, NodeProcess, installed_env, running_node, site_packages
+from conftest import PACKAGE, STARTUP_S, NodeProcess, installed_env, running_node, shm_segments, site_packages
 from helpers import angles_deg, ball_pca, held_out_depth_frame
 from probe_client import ProbeClient, cropped, matched_client
 from scipy.spatial import cKDTree
@@ -324,6 +324,7 @@ def test_sigint_during_an_estimate_cancels_it_and_exits_cleanly(start_node, fram
         in_flight = c.spin_until(lambda: _estimating(node, cloud), 120)
         assert in_flight, f"the cloud never showed in flight:\n{node.log[-3000:]}"
         assert c.answers_received == 0, "the cloud was answered before SIGINT: nothing was in flight"
+        segments = shm_segments(node.proc.pid)
         code, seconds = node.stop(signal.SIGINT, timeout=EXIT_GUARD_S)
         assert c.answers_received == 0
     assert code == 0, node.log[-3000:]
@@ -332,6 +333,8 @@ def test_sigint_during_an_estimate_cancels_it_and_exits_cleanly(start_node, fram
     assert "Traceback" not in node.log
     assert "shut down" in node.log and "still busy" not in node.log, "the estimate was not cancelled"
     assert _totals(node)[1] == 0, "the cloud was processed"
+    # The exit skips interpreter teardown, but not rclpy's shutdown: the participant's shared memory is gone.
+    assert segments and not [path for path in segments if path.exists()], segments
 
 
 # -- separate processes ---------------------------------------------------------------------------------------------
@@ -360,11 +363,13 @@ def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, insta
         assert out is not None
         assert np.isfinite(normals_of(out)).all(axis=1).sum() > 300
     assert node.log.count("first cloud received:") == 1  # announced once, however often it was resent
+    segments = shm_segments(node.proc.pid)
     code, seconds = node.stop(signal.SIGTERM, timeout=EXIT_GUARD_S)
     assert code == 0, node.log[-2000:]
     assert seconds < 2.0, f"exited {seconds:.2f} s after SIGTERM"  # README: "... exits within 2 s"
     assert "shut down" in node.log and "still busy" not in node.log
     assert "Traceback" not in node.log
+    assert segments and not [path for path in segments if path.exists()], segments
 
 
 @pytest.mark.parametrize(

@@ -1,5 +1,5 @@
 """The shutdown watchdog: a worker still inside an uncancellable step JOIN_TIMEOUT_S after SIGTERM makes the process
-exit with its own code (2), after an error line, instead of 0.
+exit with its own code (2), after an error line, instead of 0, and without leaving its DDS shared memory behind.
 
 Not driven through a real estimate: what the watchdog guards against is one torch or scipy call that runs longer than
 JOIN_TIMEOUT_S between two cancel checks (the estimator checks between neighbour-search chunks and network batches,
@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import STARTUP_S
+from conftest import STARTUP_S, shm_segments
 
 from triplet_normal_ros.ros.runner import EXIT_ABANDONED, JOIN_TIMEOUT_S
 
@@ -45,7 +45,9 @@ threading.Event().wait()
 EXIT_GUARD_S = 60.0
 
 
-def test_a_worker_stuck_past_the_watchdog_exits_2_with_an_error(ros_env: dict[str, str], tmp_path: Path) -> None:
+def test_a_worker_stuck_past_the_watchdog_exits_2_with_an_error_and_releases_its_shared_memory(
+    ros_env: dict[str, str], tmp_path: Path
+) -> None:
     log_path = tmp_path / "stuck.log"
     args = [sys.executable, "-c", STUCK_NODE, "--ros-args", "-p", "method:=pca", "-p", "device:=cpu"]
     with log_path.open("w") as log:
@@ -56,6 +58,7 @@ def test_a_worker_stuck_past_the_watchdog_exits_2_with_an_error(ros_env: dict[st
             assert time.monotonic() < deadline, log_path.read_text()
             time.sleep(0.05)
         assert proc.poll() is None, log_path.read_text()
+        segments = shm_segments(proc.pid)
         signalled = time.monotonic()
         proc.send_signal(signal.SIGTERM)
         code = proc.wait(EXIT_GUARD_S)
@@ -71,3 +74,5 @@ def test_a_worker_stuck_past_the_watchdog_exits_2_with_an_error(ros_env: dict[st
     (line,) = [line for line in text.splitlines() if "worker still busy" in line]
     assert line.startswith("[ERROR]") and f"after {JOIN_TIMEOUT_S} s; exiting {EXIT_ABANDONED}" in line, line
     assert "Traceback" not in text
+    # Its participant's segment (35 MB under the shipped profile) went with it, though the process skipped teardown.
+    assert segments and not [path for path in segments if path.exists()], segments

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -188,11 +189,32 @@ class Pool:
             free.append(actor)
 
 
+#: In Ray's out-of-memory message: the machine's memory when the worker was killed, and the threshold it crossed.
+_MEMORY_USED = re.compile(r"was ([\d.]+GB used / [\d.]+GB limit)")
+_THRESHOLD = re.compile(r"\(([\d.]+)% of \d+B limit\)")
+
+
 def _reason(error: BaseException) -> str:
     """The worker's own error in one line (Ray wraps it with the remote traceback)."""
+    import ray
+
+    if isinstance(error, ray.exceptions.OutOfMemoryError):
+        return _out_of_memory(str(error))
     cause = getattr(error, "cause", None)
     text = str(cause) if cause is not None else str(error).strip().splitlines()[-1]
     return " ".join(text.split()) or type(error).__name__
+
+
+def _out_of_memory(text: str) -> str:
+    """Ray's own message is a page of advice and a process table that end in a line which never says what happened:
+    that Ray's memory monitor killed the worker, how full the machine was, and which setting moves the line."""
+    used, threshold = _MEMORY_USED.search(text), _THRESHOLD.search(text)
+    state = f"the machine's memory was {used[1]}" if used else "the machine was low on memory"
+    limit = f", over Ray's {threshold[1]} % threshold" if threshold else ""
+    return (
+        f"Ray's memory monitor killed the worker: {state}{limit} (RAY_memory_usage_threshold); "
+        "free memory or run fewer --workers"
+    )
 
 
 def check_workers(workers: int | None, address: str | None) -> None:

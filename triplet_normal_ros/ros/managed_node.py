@@ -40,6 +40,13 @@ class ManagedNode(ServingMixin, LifecycleNode):
             self._start_worker()
         self.get_logger().info("unconfigured: waiting for the configure transition")
 
+    def destroy_node(self) -> None:
+        """Destroy the lifecycle state machine too. rclpy's LifecycleNode leaves it, and it holds the node's handle,
+        so neither the node nor its DDS participant would go before the process's end, and the participant's
+        shared-memory segment would stay in /dev/shm after the node's fast exit (docs/NODE.md, Shutdown)."""
+        super().destroy_node()
+        self._state_machine.destroy_when_not_in_use()
+
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Load the estimator; the publishers are made on the first configure and kept (they send nothing while
         inactive), so an estimate still finishing after a cleanup never publishes through a destroyed one."""

@@ -138,11 +138,25 @@ def _cancel_watchdog() -> None:
 
 def _abandon(node: Node) -> NoReturn:
     """The estimate did not reach a cancel check in time: say so and leave without waiting for it, with a code of
-    its own, since an estimate was cut off unfinished and nothing was shut down in order."""
+    its own, since an estimate was cut off unfinished and nothing else was shut down in order."""
     node.get_logger().error(
         f"worker still busy after {JOIN_TIMEOUT_S} s; exiting {EXIT_ABANDONED} without waiting for it"
     )
+    _release_dds()
     exit_now(EXIT_ABANDONED)
+
+
+#: How long the watchdog waits for rclpy's shutdown before it leaves anyway.
+RELEASE_DDS_S = 0.5
+
+
+def _release_dds() -> None:
+    """Shut rclpy down, which deletes the DDS participant and with it the participant's shared-memory segment in
+    /dev/shm (35 MB under the shipped large-data profile): an exit without it leaves the segment behind until
+    ``fastdds shm clean``. Bounded, in a thread of its own, so that a shutdown that hangs cannot hold the exit."""
+    releasing = threading.Thread(target=rclpy.try_shutdown, name="release_dds", daemon=True)
+    releasing.start()
+    releasing.join(RELEASE_DDS_S)
 
 
 def _spin(node: Node, stop: threading.Event, failed: list[BaseException]) -> None:
