@@ -3,8 +3,10 @@
 The node logs it at start-up: the learned method on a small CPU runs a few thousand points per second, and a full
 640x480 frame then takes minutes, which nothing said before. The probe is a small organized depth image of a room's
 corner (flat walls and floor, and the folds where they meet, so hybrid's gate sees both), scaled to the estimator's
-radius and passed with its shape, so the path that runs is the one an organized camera frame takes; timed after one
-warm-up call.
+radius and passed with its shape, so the path that runs is the one an organized camera frame takes. The same corner
+is timed at two resolutions, each after a warm-up call: on a small image the cost of a call (allocations, thread
+teams, the plan's checks) outweighs the cost of its points, so one image's points per second would predict a full
+frame several times too slow. The difference between the two is the cost per point; the rest is the cost per call.
 """
 
 from __future__ import annotations
@@ -17,10 +19,17 @@ import numpy as np
 from .estimator import NormalEstimator
 from .plan import Plan
 
-#: The probe image (height, width): enough points to time the network, few enough to keep start-up within seconds.
+#: The probe images (height, width): the corner at two resolutions, enough points to time the network, few enough to
+#: keep start-up within seconds.
 PROBE_SHAPE = (60, 80)
 PROBE_POINTS = PROBE_SHAPE[0] * PROBE_SHAPE[1]
-#: The probe camera's focal length in pixels, and how many pixels a ball's radius spans at the corner's distance.
+FINE_PROBE_SHAPE = (120, 160)
+#: Timed calls per probe image; the fastest counts (the machine's other work only ever adds time).
+TIMED_CALLS = 3
+#: A coarse probe slower than this is its points' cost, not its call's (the learned method on a CPU): its rate stands,
+#: and the fine probe, which would add seconds to start-up, is not run.
+POINTS_DOMINATE_S = 0.25
+#: The PROBE_SHAPE camera's focal length in pixels, and how many of its pixels a ball's radius spans at the corner.
 _FOCAL, _BALL_PIXELS = 70.0, 6.0
 #: Relative range noise: a depth camera's at about a metre.
 NOISE = 0.002
@@ -30,6 +39,7 @@ FRAME_POINTS = 640 * 480
 
 @dataclass(frozen=True)
 class Throughput:
+    #: Points per second once a call is under way: the cost per point, from the two probe images.
     points_per_second: float
     network_share: float
     #: The path the probe took: an organized camera frame's (`plan.Plan`).
@@ -37,13 +47,20 @@ class Throughput:
     #: The first (warm-up) call's seconds: it compiles the CPU's window kernels when their cache is cold
     #: (`fused.py`), so the first cloud does not.
     warm_up_s: float = 0.0
+    #: Seconds each call costs whatever its size.
+    per_call_s: float = 0.0
 
     @property
     def search(self) -> str:
         return self.plan.path
 
+    @property
+    def frame_s(self) -> float:
+        """The expected seconds for a full 640x480 organized frame."""
+        return self.per_call_s + FRAME_POINTS / self.points_per_second
+
     def describe(self, device: str) -> str:
-        frame = FRAME_POINTS / self.points_per_second
+        frame = self.frame_s
         share = f", {self.network_share:.0%} of probe points through the network" if self.network_share else ""
         warm = f"; warm-up {self.warm_up_s:.1f} s (kernels compiled or loaded)" if self.warm_up_s >= 1 else ""
         return (
@@ -53,8 +70,8 @@ class Throughput:
 
 
 def measure(estimator: NormalEstimator, seed: int = 0) -> Throughput:
-    """Points per second of `estimator` on the probe cloud (its settings unchanged)."""
-    cloud = probe_cloud(estimator.radius, seed)
+    """The cost per point and per call of `estimator` on the probe images (its settings unchanged)."""
+    coarse, fine = probe_cloud(estimator.radius, seed), probe_cloud(estimator.radius, seed, FINE_PROBE_SHAPE)
     start = time.perf_counter()
     if estimator.device.type == "cpu":  # every compiled kernel, whichever the method: a reload finds them ready
         from . import fused, fused_pools, fused_scales, kdtree
@@ -63,21 +80,40 @@ def measure(estimator: NormalEstimator, seed: int = 0) -> Throughput:
         fused_pools.warm()
         fused_scales.warm()
         kdtree.warm()
-    estimator.estimate(cloud, shape=PROBE_SHAPE)  # warm-up: first-call allocations, thread pools
+    estimator.estimate(coarse, shape=PROBE_SHAPE)  # warm-up: first-call allocations, thread pools
     warm_up = time.perf_counter() - start
-    start = time.perf_counter()
-    estimator.estimate(cloud, shape=PROBE_SHAPE)
-    seconds = max(time.perf_counter() - start, 1e-9)
+    coarse_s = _fastest(estimator, coarse, PROBE_SHAPE)
+    if coarse_s > POINTS_DOMINATE_S:
+        run = estimator.last_run
+        return Throughput(len(coarse) / coarse_s, run.network_fraction, run.plan, warm_up)
+    estimator.estimate(fine, shape=FINE_PROBE_SHAPE)  # the larger image's buffers, before it is timed
+    fine_s = _fastest(estimator, fine, FINE_PROBE_SHAPE)
     run = estimator.last_run
-    return Throughput(len(cloud) / seconds, run.network_fraction, run.plan, warm_up)
+    per_point = (fine_s - coarse_s) / (len(fine) - len(coarse))
+    if per_point <= 0:  # the machine's other work hid the difference: no call cost can be told apart
+        per_point = fine_s / len(fine)
+    per_call = max(coarse_s - per_point * len(coarse), 0.0)
+    return Throughput(1.0 / per_point, run.network_fraction, run.plan, warm_up, per_call)
 
 
-def probe_cloud(radius: float, seed: int = 0) -> np.ndarray:
-    """An organized PROBE_SHAPE depth image of a room's corner (two walls and the floor), NOISE range noise, at the
-    distance where a ball of `radius` spans about six pixels; (H·W, 3) in the camera's frame (z forward)."""
-    height, width = PROBE_SHAPE
+def _fastest(estimator: NormalEstimator, cloud: np.ndarray, shape: tuple[int, int]) -> float:
+    """The fastest of TIMED_CALLS estimates of `cloud`, in seconds."""
+    times = []
+    for _ in range(TIMED_CALLS):
+        start = time.perf_counter()
+        estimator.estimate(cloud, shape=shape)
+        times.append(time.perf_counter() - start)
+    return max(min(times), 1e-9)
+
+
+def probe_cloud(radius: float, seed: int = 0, shape: tuple[int, int] = PROBE_SHAPE) -> np.ndarray:
+    """An organized depth image of a room's corner (two walls and the floor), NOISE range noise, at the distance where
+    a ball of `radius` spans about six pixels of a PROBE_SHAPE image; a larger `shape` sees the same corner through the
+    same field of view in finer pixels. (H·W, 3) in the camera's frame (z forward)."""
+    height, width = shape
+    focal = _FOCAL * width / PROBE_SHAPE[1]
     v, u = np.mgrid[0:height, 0:width].astype(np.float64)
-    rays = np.stack(((u - width / 2) / _FOCAL, (v - height / 2) / _FOCAL, np.ones_like(u)), axis=-1)
+    rays = np.stack(((u - width / 2) / focal, (v - height / 2) / focal, np.ones_like(u)), axis=-1)
     distance = radius * _FOCAL / _BALL_PIXELS
     # Planes n · p = d facing the camera: the back-left wall, the back-right wall and the floor below.
     planes = [(np.array([0.6, 0.0, -1.0]), -distance), (np.array([-0.6, 0.0, -1.0]), -distance)]
