@@ -35,6 +35,12 @@ COLCON = Path(sys.executable).with_name("colcon")
 #: How long a test's node gets to exit on SIGINT when the test is done with it (it promises 2 s; the rest is room for a
 #: loaded machine) before it is killed.
 CLOSE_S = 30.0
+#: Where Fast DDS keeps a participant's shared-memory transport on Linux: a segment file per participant (fastdds_ on
+#: Fast DDS 3, fastrtps_ on 2.x, so Jazzy) beside an ``_el`` lock file that the owner holds while it lives.
+SHM_DIR = Path("/dev/shm")
+_SEGMENT = re.compile(r"fast(dds|rtps)_[0-9a-f]{16}")
+#: A lock file younger than this may belong to a participant still starting: it creates the file, then locks it.
+LOCK_GRACE_S = 30.0
 #: Where the tests keep what they cache between runs: inside the repository, git-ignored (.gitignore has .cache/).
 TEST_CACHE = REPO / ".cache"
 
@@ -81,48 +87,54 @@ def pytest_unconfigure(config: pytest.Config) -> None:
     release_dead_segments()
 
 
-#: Where Fast DDS keeps a participant's shared-memory transport on Linux: a segment file per participant (fastdds_ on
-#: Fast DDS 3, fastrtps_ on 2.x, so Jazzy) beside an ``_el`` lock file that the owner holds while it lives.
-SHM_DIR = Path("/dev/shm")
-_SEGMENT = re.compile(r"fast(dds|rtps)_[0-9a-f]{16}")
-
-
 def shm_segments(pid: int) -> set[Path]:
     """The Fast DDS segments process `pid` owns (it holds their lock files): what its orderly exit must remove from
     /dev/shm. A process also maps its peers' segments, which are not its to remove."""
-    held = set()
+    held: set[tuple[int, int]] = set()
     for line in Path("/proc/locks").read_text().splitlines():
         fields = line.split()  # "1: FLOCK  ADVISORY  WRITE <pid> <major>:<minor>:<inode> 0 EOF"
         if len(fields) > 5 and fields[1] == "FLOCK" and fields[4] == str(pid):
-            held.add(int(fields[5].rsplit(":", 1)[1]))
+            major, minor, inode = fields[5].split(":")
+            held.add((os.makedev(int(major, 16), int(minor, 16)), int(inode)))
+    return {lock.with_name(lock.name[:-3]) for lock in _segment_locks() if _file_id(lock) in held}
+
+
+def _segment_locks() -> list[Path]:
+    """The ``_el`` lock files of Fast DDS segments (not of its ports)."""
     locks = SHM_DIR.glob("fast*_el") if SHM_DIR.is_dir() else ()
-    return {
-        lock.with_name(lock.name[:-3]) for lock in locks if _SEGMENT.fullmatch(lock.name[:-3]) and _inode(lock) in held
-    }
+    return [lock for lock in locks if _SEGMENT.fullmatch(lock.name[:-3])]
 
 
-def _inode(path: Path) -> int | None:
+def _file_id(path: Path) -> tuple[int, int] | None:
     try:
-        return path.stat().st_ino
+        status = path.stat()
     except OSError:  # removed since it was listed
         return None
+    return status.st_dev, status.st_ino
 
 
-def release_dead_segments() -> None:
+def release_dead_segments(grace_s: float = LOCK_GRACE_S) -> None:
     """Remove the segments of processes that died without shutting DDS down, as ``fastdds shm clean`` does: a
     segment whose lock file nobody holds has no owner. The tests kill node processes on purpose, and each such
     segment is 35 MB with the shipped large-data profile, in a tmpfs that counts as used memory (Ray's memory monitor
-    starts killing workers at 95 %). Segments of live processes, this run's or anyone's, are left alone."""
-    for lock in SHM_DIR.glob("fast*_el") if SHM_DIR.is_dir() else ():
-        if not _SEGMENT.fullmatch(lock.name[:-3]):
+    starts killing workers at 95 %). Segments of live processes, this run's or anyone's, are left alone, and so is a
+    lock file younger than `grace_s`, which a participant may have created and not yet locked."""
+    for lock in _segment_locks():
+        try:
+            if time.time() - lock.stat().st_mtime < grace_s:
+                continue
+            descriptor = os.open(lock, os.O_RDONLY)
+        except OSError:  # already gone
             continue
         try:
-            with lock.open("ab") as held:
-                fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:  # held by a live participant (or already gone)
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:  # held by a live participant
             continue
-        lock.with_name(lock.name[:-3]).unlink(missing_ok=True)
-        lock.unlink(missing_ok=True)
+        finally:
+            os.close(descriptor)
+        with contextlib.suppress(OSError):  # gone meanwhile, or another user's in the sticky /dev/shm
+            lock.with_name(lock.name[:-3]).unlink()
+            lock.unlink()
 
 
 @pytest.fixture(scope="session")

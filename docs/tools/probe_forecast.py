@@ -25,6 +25,7 @@ METHODS = {
 
 
 def fastest(estimator: NormalEstimator, points: np.ndarray, shape: tuple[int, int], runs: int = 3) -> float:
+    """The fastest of `runs` estimates after a warm-up, as the forecast times its probes."""
     estimator.estimate(points, shape=shape)
     times = []
     for _ in range(runs):

@@ -109,8 +109,8 @@ def test_every_transition_through_the_lifecycle_services(start_node) -> None:
         segments = shm_segments(node.proc.pid)
         assert probe.change(Transition.TRANSITION_ACTIVE_SHUTDOWN)
     code = node.proc.wait(WAIT_S)
-    assert segments and not [path for path in segments if path.exists()], segments
     assert code == 0, node.log[-3000:]
+    assert segments and not [path for path in segments if path.exists()], segments
     for line in ("configured: method=pca", f"active: {IN} -> {OUT}", "inactive:", "the estimator is released"):
         assert line in node.log, line
     assert node.log.count("configured: method=pca") == 2

@@ -24,7 +24,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import PACKAGE, STARTUP_S, NodeProcess, installed_env, running_node, shm_segments, site_packages
+from conftest import (
+    PACKAGE,
+    STARTUP_S,
+    NodeProcess,
+    installed_env,
+    release_dead_segments,
+    running_node,
+    shm_segments,
+    site_packages,
+)
 from helpers import angles_deg, ball_pca, held_out_depth_frame
 from probe_client import ProbeClient, cropped, matched_client
 from scipy.spatial import cKDTree
@@ -335,6 +344,20 @@ def test_sigint_during_an_estimate_cancels_it_and_exits_cleanly(start_node, fram
     assert _totals(node)[1] == 0, "the cloud was processed"
     # The exit skips interpreter teardown, but not rclpy's shutdown: the participant's shared memory is gone.
     assert segments and not [path for path in segments if path.exists()], segments
+
+
+def test_a_killed_node_leaves_its_segments_until_they_are_released(start_node) -> None:
+    """The control for the shared-memory checks of the exits above: SIGKILL allows no shutdown, so the node's Fast
+    DDS segments stay in /dev/shm; `release_dead_segments`, what the test run does at its start and end as
+    `fastdds shm clean` would, removes them (with no grace: this node's lock files are seconds old)."""
+    node = start_node(PCA_PARAMS, {"input": "/tn_kill/in", "output": "/tn_kill/out"})
+    assert node.wait_for_log("ready:", STARTUP_S), node.log
+    segments = shm_segments(node.proc.pid)
+    node.proc.kill()
+    node.proc.wait(EXIT_GUARD_S)
+    assert segments and all(path.exists() for path in segments), segments
+    release_dead_segments(grace_s=0.0)
+    assert not [path for path in segments if path.exists()], segments
 
 
 # -- separate processes ---------------------------------------------------------------------------------------------

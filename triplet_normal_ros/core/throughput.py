@@ -23,12 +23,16 @@ from .plan import Plan
 #: keep start-up within seconds.
 PROBE_SHAPE = (60, 80)
 PROBE_POINTS = PROBE_SHAPE[0] * PROBE_SHAPE[1]
-FINE_PROBE_SHAPE = (120, 160)
+FINE_PROBE_SHAPE = (240, 320)
 #: Timed calls per probe image; the fastest counts (the machine's other work only ever adds time).
 TIMED_CALLS = 3
 #: A coarse probe slower than this is its points' cost, not its call's (the learned method on a CPU): its rate stands,
-#: and the fine probe, which would add seconds to start-up, is not run.
+#: and neither more timed calls nor the fine probe, which would add seconds to start-up, are run.
 POINTS_DOMINATE_S = 0.25
+#: The fine probe has 16x the points; under this many times the coarse one's time, the two are too close to split
+#: into a cost per call and per point (the call dominates both, as on a GPU, or the machine's other work blurred
+#: them), and the fine probe's own rate stands: a forecast too slow rather than one too fast.
+SPLIT_RATIO = 1.5
 #: The PROBE_SHAPE camera's focal length in pixels, and how many of its pixels a ball's radius spans at the corner.
 _FOCAL, _BALL_PIXELS = 70.0, 6.0
 #: Relative range noise: a depth camera's at about a metre.
@@ -39,7 +43,7 @@ FRAME_POINTS = 640 * 480
 
 @dataclass(frozen=True)
 class Throughput:
-    #: Points per second once a call is under way: the cost per point, from the two probe images.
+    #: Points per second once a call is under way: the cost per point (`split`).
     points_per_second: float
     network_share: float
     #: The path the probe took: an organized camera frame's (`plan.Plan`).
@@ -69,8 +73,9 @@ class Throughput:
         )
 
 
-def measure(estimator: NormalEstimator, seed: int = 0) -> Throughput:
-    """The cost per point and per call of `estimator` on the probe images (its settings unchanged)."""
+def measure(estimator: NormalEstimator, seed: int = 0, points_dominate_s: float = POINTS_DOMINATE_S) -> Throughput:
+    """The cost per point and per call of `estimator` on the probe images (its settings unchanged); a coarse probe
+    over `points_dominate_s` is timed once and alone."""
     coarse, fine = probe_cloud(estimator.radius, seed), probe_cloud(estimator.radius, seed, FINE_PROBE_SHAPE)
     start = time.perf_counter()
     if estimator.device.type == "cpu":  # every compiled kernel, whichever the method: a reload finds them ready
@@ -82,24 +87,33 @@ def measure(estimator: NormalEstimator, seed: int = 0) -> Throughput:
         kdtree.warm()
     estimator.estimate(coarse, shape=PROBE_SHAPE)  # warm-up: first-call allocations, thread pools
     warm_up = time.perf_counter() - start
-    coarse_s = _fastest(estimator, coarse, PROBE_SHAPE)
-    if coarse_s > POINTS_DOMINATE_S:
-        run = estimator.last_run
-        return Throughput(len(coarse) / coarse_s, run.network_fraction, run.plan, warm_up)
-    estimator.estimate(fine, shape=FINE_PROBE_SHAPE)  # the larger image's buffers, before it is timed
-    fine_s = _fastest(estimator, fine, FINE_PROBE_SHAPE)
+    coarse_s = _fastest(estimator, coarse, PROBE_SHAPE, points_dominate_s)
+    fine_s = None
+    if coarse_s <= points_dominate_s:
+        estimator.estimate(fine, shape=FINE_PROBE_SHAPE)  # the larger image's buffers, before it is timed
+        fine_s = _fastest(estimator, fine, FINE_PROBE_SHAPE, points_dominate_s)
     run = estimator.last_run
-    per_point = (fine_s - coarse_s) / (len(fine) - len(coarse))
-    if per_point <= 0:  # the machine's other work hid the difference: no call cost can be told apart
-        per_point = fine_s / len(fine)
-    per_call = max(coarse_s - per_point * len(coarse), 0.0)
-    return Throughput(1.0 / per_point, run.network_fraction, run.plan, warm_up, per_call)
+    rate, per_call = split(len(coarse), coarse_s, len(fine), fine_s)
+    return Throughput(rate, run.network_fraction, run.plan, warm_up, per_call)
 
 
-def _fastest(estimator: NormalEstimator, cloud: np.ndarray, shape: tuple[int, int]) -> float:
-    """The fastest of TIMED_CALLS estimates of `cloud`, in seconds."""
-    times = []
-    for _ in range(TIMED_CALLS):
+def split(coarse_points: int, coarse_s: float, fine_points: int, fine_s: float | None) -> tuple[float, float]:
+    """(points per second, seconds per call) from the two probes' times: the difference between them is the cost of
+    the extra points, the rest the cost of a call. Without the fine probe, or where it took under SPLIT_RATIO times
+    the coarse one's time, one probe's own rate stands with no call cost."""
+    if fine_s is None:
+        return coarse_points / coarse_s, 0.0
+    if fine_s < SPLIT_RATIO * coarse_s:
+        return fine_points / fine_s, 0.0
+    per_point = (fine_s - coarse_s) / (fine_points - coarse_points)
+    return 1.0 / per_point, max(coarse_s - per_point * coarse_points, 0.0)
+
+
+def _fastest(estimator: NormalEstimator, cloud: np.ndarray, shape: tuple[int, int], points_dominate_s: float) -> float:
+    """The fastest of TIMED_CALLS estimates of `cloud`, in seconds; the first alone when it takes over
+    `points_dominate_s`, so that a slow method does not slow start-up further."""
+    times: list[float] = []
+    while len(times) < TIMED_CALLS and not (times and times[0] > points_dominate_s):
         start = time.perf_counter()
         estimator.estimate(cloud, shape=shape)
         times.append(time.perf_counter() - start)

@@ -142,19 +142,26 @@ def _abandon(node: Node) -> NoReturn:
     node.get_logger().error(
         f"worker still busy after {JOIN_TIMEOUT_S} s; exiting {EXIT_ABANDONED} without waiting for it"
     )
-    _release_dds()
+    _release_dds(node)
     exit_now(EXIT_ABANDONED)
 
 
-#: How long the watchdog waits for rclpy's shutdown before it leaves anyway.
-RELEASE_DDS_S = 0.5
+#: How long the watchdog waits for the node's destruction and rclpy's shutdown before it leaves anyway.
+RELEASE_DDS_S = 1.0
 
 
-def _release_dds() -> None:
-    """Shut rclpy down, which deletes the DDS participant and with it the participant's shared-memory segment in
-    /dev/shm (35 MB under the shipped large-data profile): an exit without it leaves the segment behind until
-    ``fastdds shm clean``. Bounded, in a thread of its own, so that a shutdown that hangs cannot hold the exit."""
-    releasing = threading.Thread(target=rclpy.try_shutdown, name="release_dds", daemon=True)
+def _release_dds(node: Node) -> None:
+    """Destroy the node and shut rclpy down, which deletes the DDS participant and with it the participant's
+    shared-memory segment in /dev/shm (35 MB under the shipped large-data profile): an exit without it leaves the
+    segment behind until ``fastdds shm clean``. The node is destroyed first because the participant goes with the
+    context's last node, and Jazzy's rclpy shutdown does not destroy nodes itself. Bounded, in a thread of its own,
+    so that a destruction that hangs cannot hold the exit."""
+
+    def release() -> None:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+    releasing = threading.Thread(target=release, name="release_dds", daemon=True)
     releasing.start()
     releasing.join(RELEASE_DDS_S)
 
