@@ -22,7 +22,7 @@ from typing import Any
 
 import pytest
 
-from triplet_normal_ros.ros.node_process import params_file
+from triplet_normal_ros.ros.node_process import params_file, stop_node
 from triplet_normal_ros.ros.transport import PROFILE_ENVS, choose_profile
 
 REPO = Path(__file__).resolve().parents[1]
@@ -97,6 +97,11 @@ def shm_segments(pid: int) -> set[Path]:
             major, minor, inode = fields[5].split(":")
             held.add((os.makedev(int(major, 16), int(minor, 16)), int(inode)))
     return {lock.with_name(lock.name[:-3]) for lock in _segment_locks() if _file_id(lock) in held}
+
+
+def left_behind(segments: set[Path]) -> list[Path]:
+    """Those of `segments` still in /dev/shm."""
+    return [path for path in segments if path.exists()]
 
 
 def _segment_locks() -> list[Path]:
@@ -244,11 +249,7 @@ class NodeProcess:
     def close(self) -> None:
         """Stop the node as Ctrl-C would, which also removes its DDS shared-memory segment; kill it only if it is
         still running CLOSE_S later."""
-        if self.proc.poll() is None:
-            code, _ = self.stop(signal.SIGINT, timeout=CLOSE_S)
-            if code is None:
-                self.proc.kill()
-                self.proc.wait(10)
+        stop_node(self.proc, timeout=CLOSE_S)
         self._log.close()
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import STARTUP_S, NodeProcess, shm_segments
+from conftest import STARTUP_S, NodeProcess, left_behind, shm_segments
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from probe_client import ProbeClient, cropped
@@ -110,7 +110,7 @@ def test_every_transition_through_the_lifecycle_services(start_node) -> None:
         assert probe.change(Transition.TRANSITION_ACTIVE_SHUTDOWN)
     code = node.proc.wait(WAIT_S)
     assert code == 0, node.log[-3000:]
-    assert segments and not [path for path in segments if path.exists()], segments
+    assert segments and not left_behind(segments), segments
     for line in ("configured: method=pca", f"active: {IN} -> {OUT}", "inactive:", "the estimator is released"):
         assert line in node.log, line
     assert node.log.count("configured: method=pca") == 2

@@ -29,6 +29,7 @@ from conftest import (
     STARTUP_S,
     NodeProcess,
     installed_env,
+    left_behind,
     release_dead_segments,
     running_node,
     shm_segments,
@@ -343,7 +344,7 @@ def test_sigint_during_an_estimate_cancels_it_and_exits_cleanly(start_node, fram
     assert "shut down" in node.log and "still busy" not in node.log, "the estimate was not cancelled"
     assert _totals(node)[1] == 0, "the cloud was processed"
     # The exit skips interpreter teardown, but not rclpy's shutdown: the participant's shared memory is gone.
-    assert segments and not [path for path in segments if path.exists()], segments
+    assert segments and not left_behind(segments), segments
 
 
 def test_a_killed_node_leaves_its_segments_until_they_are_released(start_node) -> None:
@@ -357,7 +358,7 @@ def test_a_killed_node_leaves_its_segments_until_they_are_released(start_node) -
     node.proc.wait(EXIT_GUARD_S)
     assert segments and all(path.exists() for path in segments), segments
     release_dead_segments(grace_s=0.0)
-    assert not [path for path in segments if path.exists()], segments
+    assert not left_behind(segments), segments
 
 
 # -- separate processes ---------------------------------------------------------------------------------------------
@@ -392,7 +393,7 @@ def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, insta
     assert seconds < 2.0, f"exited {seconds:.2f} s after SIGTERM"  # README: "... exits within 2 s"
     assert "shut down" in node.log and "still busy" not in node.log
     assert "Traceback" not in node.log
-    assert segments and not [path for path in segments if path.exists()], segments
+    assert segments and not left_behind(segments), segments
 
 
 @pytest.mark.parametrize(

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import STARTUP_S, shm_segments
+from conftest import STARTUP_S, left_behind, shm_segments
 
 from triplet_normal_ros.ros.runner import EXIT_ABANDONED, JOIN_TIMEOUT_S
 
@@ -75,4 +75,4 @@ def test_a_worker_stuck_past_the_watchdog_exits_2_with_an_error_and_releases_its
     assert line.startswith("[ERROR]") and f"after {JOIN_TIMEOUT_S} s; exiting {EXIT_ABANDONED}" in line, line
     assert "Traceback" not in text
     # Its participant's segment (35 MB under the shipped profile) went with it, though the process skipped teardown.
-    assert segments and not [path for path in segments if path.exists()], segments
+    assert segments and not left_behind(segments), segments
