@@ -207,7 +207,7 @@ def test_cpu_recipe_options_residual_head_and_relative_loss_reach_the_checkpoint
     est = NormalEstimator("learned", radius=0.2, checkpoint=run_dir / "model.safetensors", device="cpu")
     normals, _ = est.estimate(plane, query=np.arange(0, 3000, 30))
     truth = np.array([0.3, 0.1, -1.0]) / np.linalg.norm([0.3, 0.1, -1.0])
-    assert np.degrees(np.arccos(np.abs(normals @ truth))).max() < 10.0
+    assert np.degrees(np.arccos(np.clip(np.abs(normals @ truth), 0.0, 1.0))).max() < 10.0  # |cos| may round past 1
 
 
 def test_ablation_rows_are_the_paper_ablations_and_ours_at_one_budget(tmp_path):

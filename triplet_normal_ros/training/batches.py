@@ -1,7 +1,11 @@
 """Training batches from generated clouds: anchor/positive/negative patches (phase a) and patches with their
 ground-truth normals (phase b), all through the same `build_patches` that inference uses."""
 
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 import torch
@@ -100,16 +104,53 @@ class PatchSampler:
         return NormalSet(p.points[ok], centre_normal[ok], patch_normals[ok], fits)
 
 
+#: Environment variable that caps the clouds whose patches are built at once (default: every core this process may use).
+WORKERS_ENV = "TRIPLET_NORMAL_TRAIN_WORKERS"
+_Part = TypeVar("_Part")
+
+
+def collection_workers() -> int:
+    """Clouds built at once: $TRIPLET_NORMAL_TRAIN_WORKERS, else the cores this process may run on.
+
+    Threads, not processes: the KD-tree, the patch frames and the scale fits run in numba code compiled without the
+    GIL and in torch, so threads share one copy of every cloud and need no pickling or fork.
+    """
+    override = os.environ.get(WORKERS_ENV, "").strip()
+    if override:
+        if not override.isdigit() or int(override) < 1:
+            raise ValueError(f"${WORKERS_ENV} must be a whole number >= 1, got {override!r}")
+        return int(override)
+    return max(1, len(os.sched_getaffinity(0)))
+
+
+def cloud_generators(seed: int, cloud: int) -> tuple[np.random.Generator, torch.Generator]:
+    """The numpy and torch generators of one cloud in one collection, from the collection's seed and the cloud's
+    position alone: the draws do not depend on how many clouds are built at once or which finishes first."""
+    state = np.random.SeedSequence([seed, cloud])
+    return np.random.default_rng(state), torch.Generator().manual_seed(int(state.generate_state(1, np.uint64)[0] >> 1))
+
+
+def _per_cloud(samplers: list[PatchSampler], build: Callable[..., _Part], seed: int, desc: str) -> list[_Part]:
+    """`build(sampler, rng, generator)` for every cloud, in the samplers' order, on `collection_workers()` threads."""
+
+    def one(i: int) -> _Part:
+        return build(samplers[i], *cloud_generators(seed, i))
+
+    workers = min(collection_workers(), max(1, len(samplers)))
+    with ThreadPoolExecutor(workers, thread_name_prefix="collect") as pool:
+        parts = pool.map(one, range(len(samplers)))
+        return list(tqdm(parts, total=len(samplers), desc=desc, unit="cloud", leave=False))
+
+
 def collect_triplets(samplers: list[PatchSampler], per_cloud: int, seed: int, desc: str) -> TripletSet:
     """One epoch of triplets, `per_cloud` anchors from every cloud, reproducible from `seed`."""
-    rng, generator = np.random.default_rng(seed), torch.Generator().manual_seed(seed)
-    parts = [s.triplets(per_cloud, rng, generator) for s in tqdm(samplers, desc=desc, unit="cloud", leave=False)]
+    parts = _per_cloud(samplers, lambda s, rng, gen: s.triplets(per_cloud, rng, gen), seed, desc)
     return TripletSet(*(torch.cat([getattr(p, f) for p in parts]) for f in ("anchor", "positive", "negative")))
 
 
 def collect_normal_patches(samplers: list[PatchSampler], per_cloud: int, seed: int, desc: str) -> NormalSet:
-    rng, generator = np.random.default_rng(seed), torch.Generator().manual_seed(seed)
-    parts = [s.normal_patches(per_cloud, rng, generator) for s in tqdm(samplers, desc=desc, unit="cloud", leave=False)]
+    """`per_cloud` patches with their ground truth from every cloud, reproducible from `seed`."""
+    parts = _per_cloud(samplers, lambda s, rng, gen: s.normal_patches(per_cloud, rng, gen), seed, desc)
     fits = None
     if parts and parts[0].fits is not None:
         fits = ScaleFits(*(torch.cat([getattr(p.fits, f) for p in parts]) for f in ("normals", "cues")))

@@ -7,8 +7,9 @@ scale), `cpu` (the CPU base the others start from, and `ablate`'s), `scales` (cp
 range frames: the shipped default checkpoint) and `lite` (the lite checkpoint); docs/TRAINING.md records each.
 
 Reproducibility: torch's global generator is seeded once, draws the weight initialisation and then one shuffle per
-epoch (`_shuffled_batches`); everything else draws from generators seeded per collection. Changing the order of those
-calls changes the shipped checkpoint.
+epoch (`_shuffled_batches`); every patch draws from generators seeded by its collection and its cloud
+(`batches.cloud_generators`), so the clouds can be built on many threads and the run stays the same on any number of
+cores. Changing the order of the global generator's calls changes the weights a recipe trains.
 """
 
 import dataclasses
@@ -430,7 +431,9 @@ def _optimiser(
 
 def _load_state(run_dir: Path) -> dict | None:
     path = run_dir / "state.pt"
-    return torch.load(path, weights_only=True) if path.is_file() else None  # weights_only: never unpickle code
+    # weights_only: never unpickle code. map_location cpu: a state saved on a GPU resumes on a CPU too; the model and
+    # the optimizer move their tensors to the run's device when they load them.
+    return torch.load(path, weights_only=True, map_location="cpu") if path.is_file() else None
 
 
 def _check_resumable(state: dict, recipe: Recipe, run_dir: Path) -> None:
