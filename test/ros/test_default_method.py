@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import running_node
-from helpers import angles_deg, ball_pca, held_out_depth_frame
+from helpers import angles_deg, ball_pca, faces_viewpoint, held_out_depth_frame
 from probe_client import ProbeClient, matched_client
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field, read_xyz
@@ -63,7 +63,7 @@ def test_default_node_answers_a_full_depth_frame_near_its_exact_normals(client: 
     normals, curvature = normals_of(out), read_field(out, "curvature")
     valid, answered = simulated.valid.reshape(-1), np.isfinite(normals).all(axis=1)
     assert not answered[~valid].any() and answered[valid].mean() > 0.999  # measured: every return
-    assert (np.einsum("ij,ij->i", -points[answered], normals[answered]) >= 0).all(), "normals must face the sensor"
+    assert faces_viewpoint(points[answered], normals[answered]).all(), "normals must face the sensor"
     assert curvature[answered].min() >= 0 and curvature[answered].max() <= 1 / 3 + 1e-6
 
     sample = np.sort(np.random.default_rng(0).choice(np.flatnonzero(valid), 5000, replace=False))
