@@ -123,6 +123,25 @@ def angles_deg(a: np.ndarray, b: np.ndarray, signed: bool = False) -> np.ndarray
     return np.degrees(np.arccos(np.clip(cosine if signed else np.abs(cosine), -1.0, 1.0)))
 
 
+#: How far below zero the cosine between a normal and its ray to the viewpoint may fall for the normal still to count
+#: as facing the viewpoint. The package decides the flip in float64; a message carries the points and normals in
+#: float32, whose rounding (6e-8 relative per component) moves that cosine by about 2e-7 at most, so a normal nearly
+#: edge-on to its ray may read as facing away by that much. A normal that faces away by more than 0.0006 degrees fails.
+FACING_TOLERANCE = 1e-5
+
+
+def faces_viewpoint(
+    points: np.ndarray, normals: np.ndarray, viewpoint: Sequence[float] = (0.0, 0.0, 0.0)
+) -> np.ndarray:
+    """Per row, whether the normal faces the viewpoint: cos(viewpoint - p, n) >= -FACING_TOLERANCE, in float64.
+    A point at the viewpoint itself faces it either way."""
+    rays = np.asarray(viewpoint, dtype=np.float64).reshape(1, 3) - np.asarray(points, dtype=np.float64)
+    normals = np.asarray(normals, dtype=np.float64)
+    dot = np.einsum("ij,ij->i", rays, normals)
+    scale = np.linalg.norm(rays, axis=1) * np.linalg.norm(normals, axis=1)
+    return dot >= -FACING_TOLERANCE * scale
+
+
 #: What parsing a small file or message that claims a huge size may allocate at most: far below what the claim needs.
 ALLOCATION_BOUND = 1 << 20
 

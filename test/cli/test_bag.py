@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import faces_viewpoint
 from rosbag_files import (
     BLOB,
     CLOUD,
@@ -117,7 +118,7 @@ def assert_normals_match(out: Record, source: Record, **options) -> None:
     finite = np.isfinite(got).all(axis=1)
     assert finite.sum() > 0.9 * np.isfinite(read_xyz(source.msg)).all(axis=1).sum()
     points = read_xyz(source.msg)[finite]
-    assert (np.einsum("ij,ij->i", -points, got[finite]) >= 0).all()  # facing the sensor at the origin
+    assert faces_viewpoint(points, got[finite]).all()  # facing the sensor at the origin
 
 
 def run_ok(capsys, argv: list) -> str:

@@ -287,8 +287,22 @@ def test_tiled_estimate_of_a_million_points_is_the_one_process_answer(tmp_path: 
     tiled = ["--workers", "2", "--tile-points", "200000"]
     assert main(["estimate", str(path), "--out", str(tmp_path / "tiled.npy"), *common, *tiled]) == 0
     one, parts = np.load(tmp_path / "one.npy"), np.load(tmp_path / "tiled.npy")
-    assert one.shape == parts.shape and np.isfinite(one).all(axis=1).mean() > 0.99
-    np.testing.assert_array_equal(parts, one)
+    assert one.shape == parts.shape
+    # Exact where nothing is computed: the points, and which of them get a normal (a tile finds each interior point's
+    # neighbours in the whole cloud, so the same count of them).
+    np.testing.assert_array_equal(parts[:, :3], one[:, :3])
+    answered = np.isfinite(one[:, 3:]).all(axis=1)
+    np.testing.assert_array_equal(np.isfinite(parts[:, 3:]).all(axis=1), answered)
+    assert answered.mean() > 0.99
+    # The same neighbours, but gathered in the tile's order and summed on the worker's thread count: the covariance
+    # may be rounded differently. A 30-point fit of this gentle surface has its smallest eigenvalue far below the
+    # others, so that roundoff turns a normal by far less than 1e-3 degrees, and a wrong neighbour or tile by far
+    # more. The angle comes from the cross product: arccos of a float32 normal's dot product cannot resolve it.
+    a, b = parts[answered, 3:6], one[answered, 3:6]
+    # Signed: with no --viewpoint the sign is the solver's, which the same covariance to roundoff does not flip.
+    sine, cosine = np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b)
+    assert np.degrees(np.arctan2(sine, cosine)).max() < 1e-3
+    np.testing.assert_allclose(parts[answered, 6], one[answered, 6], rtol=0, atol=1e-6)
 
 
 @pytest.mark.parametrize(

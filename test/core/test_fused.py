@@ -68,6 +68,37 @@ def _fits(name: str):
     return images, [image.pca(radius, scale) for image in images]
 
 
+# The share of valid pixels whose z may differ between the backends beyond roundoff (see the survey test)
+MAY_DIFFER = 1e-4
+
+
+def _near(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Where two float64 values agree to roundoff, relative to their size."""
+    return (a - b).abs() <= 1e-6 * (1 + b.abs())
+
+
+def _cue_differs(reference, compiled, valid: torch.Tensor) -> torch.Tensor:
+    """The valid pixels whose z differs between the backends beyond roundoff."""
+    return valid & ~_near(compiled.z, reference.z)
+
+
+def _assert_same_gates(reference, compiled, valid: torch.Tensor) -> None:
+    """The gate opens on the same pixels in both backends, except where a cue the backends may round differently
+    lies at the gate's edge: z or bend within roundoff of its threshold, or z among the few pixels that differ. Those
+    pixels are bounded by count, so a gate that disagrees where the cues agree still fails."""
+    threshold = window_z(HYBRID_GATE)
+    gates = [(c.z > threshold) & (c.bend > HYBRID_BEND) & valid for c in (reference, compiled)]
+    full = torch.full_like(reference.z, threshold)
+    edge = (
+        _near(reference.z, full)
+        | _near(reference.bend, torch.full_like(reference.bend, HYBRID_BEND))
+        | _cue_differs(reference, compiled, valid)
+    )
+    differ = gates[0] ^ gates[1]
+    assert not bool((differ & ~edge).any()), "the gates differ where both backends see the same cue"
+    assert int(differ.sum()) <= MAY_DIFFER * int(valid.sum())
+
+
 @pytest.mark.parametrize("name", sorted(FRAMES))
 def test_the_compiled_windows_are_the_torch_windows(name: str) -> None:
     (_, _), (torch_fit, fused_fit) = _fits(name)
@@ -92,12 +123,10 @@ def test_the_compiled_survey_is_the_torch_survey(name: str) -> None:
     assert float((1 - (torch_normal[valid] * normal[valid]).sum(dim=1).abs()).max()) < 1e-12
     assert torch.allclose(cue.bend[valid], torch_cue.bend[valid], rtol=1e-6, atol=1e-9)
     # z divides by the window's spread along its normal, which is roundoff on a few flat, quantized windows of the
-    # real frames (9 of 271k Kinect pixels differ by up to 0.4 %); the gate must still open on exactly the same pixels
-    off = (cue.z[valid] - torch_cue.z[valid]).abs() > 1e-6 * (1 + torch_cue.z[valid].abs())
-    assert int(off.sum()) <= 1e-4 * int(valid.sum())
-    threshold = window_z(HYBRID_GATE)
-    gates = [(c.z > threshold) & (c.bend > HYBRID_BEND) & valid for c in (torch_cue, cue)]
-    assert torch.equal(gates[0], gates[1])
+    # real frames (9 of 271k Kinect pixels differ by up to 0.4 %)
+    off = _cue_differs(torch_cue, cue, valid)
+    assert int(off.sum()) <= MAY_DIFFER * int(valid.sum())
+    _assert_same_gates(torch_cue, cue, valid)
 
 
 @pytest.mark.parametrize("name", sorted(FRAMES))
@@ -129,9 +158,8 @@ def test_the_compiled_sloped_survey_and_its_gate_are_the_torch_ones(name: str) -
     valid = fits[0].valid
     assert float((1 - (torch_normal[valid] * normal[valid]).sum(dim=1).abs()).max()) < 1e-12
     assert torch.allclose(cue.bend[valid], torch_cue.bend[valid], rtol=1e-6, atol=1e-9)
-    threshold = window_z(HYBRID_GATE)
-    gates = [(c.z > threshold) & (c.bend > HYBRID_BEND) & valid for c in (torch_cue, cue)]
-    assert torch.equal(gates[0], gates[1])
+    assert int(_cue_differs(torch_cue, cue, valid).sum()) <= MAY_DIFFER * int(valid.sum())
+    _assert_same_gates(torch_cue, cue, valid)
 
 
 @pytest.mark.parametrize("name", ["simulated depth", "simulated lidar"])

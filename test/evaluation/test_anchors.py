@@ -166,11 +166,16 @@ def test_the_torus_normals_are_exact_and_its_points_unchanged() -> None:
 
 
 def test_bench_rows_and_anchor_rows_share_query_points_and_truth_and_ratios_go_to_open3d_knn30() -> None:
-    """The stand-in computes what bench's `pca, k = 30` row does, so equal MSAE means the same points and truth."""
+    """The stand-in computes what bench's `pca, k = 30` row does, so equal MSAE means the same points and truth. It
+    reports its own time, far from the package's, so each ratio column shows which row it divides by."""
     points, truth = torus_sample(3000, seed=5)
     cloud = Cloud("torus 3,000", points, None, 0.2, truth)
     row = bench_one(cloud.name, points, None, 0.2, "pca, k = 30", PCA30, "cpu", 300, truth)
-    stand_in = anchors.Anchor(anchors.BASE_ANCHOR, pca_anchor, about="the package's PCA, standing in")
+
+    def reported(p: np.ndarray, shape, radius: float) -> tuple[np.ndarray, list[float]]:
+        return pca_anchor(p, shape, radius), [1000.0]
+
+    stand_in = anchors.Anchor(anchors.BASE_ANCHOR, reported, about="the package's PCA, standing in", times_itself=True)
     anchor_row = anchors.measure(stand_in, cloud.name, points, None, 0.2, truth, cloud.timed_query(300), 1)
     assert row.msae is not None and anchor_row.msae == pytest.approx(row.msae, rel=1e-12)
     text = anchors_markdown([row], [anchor_row], [stand_in], [anchors.Skipped("OpenCV RgbdNormals", "pip ...")])
@@ -179,7 +184,9 @@ def test_bench_rows_and_anchor_rows_share_query_points_and_truth_and_ratios_go_t
     cells = [[c.strip() for c in line.strip("|").split("|")] for line in table]
     assert [c[1] for c in cells] == ["pca, k = 30", f"{anchors.BASE_ANCHOR} *"]
     assert cells[1][4] == "1.00" and cells[0][3] == "1.00"  # × Open3D KNN30 of the anchor, × PCA-30 of the package
-    assert float(cells[0][4]) == pytest.approx(row.cloud_s / anchor_row.seconds, rel=0.01)
+    assert anchor_row.seconds == 1000.0
+    assert float(cells[0][4]) == pytest.approx(row.cloud_s / 1000.0, rel=0.01)  # the package × the anchor
+    assert float(cells[1][3].replace(",", "")) == pytest.approx(1000.0 / row.cloud_s, rel=0.01)  # the anchor × PCA-30
 
 
 def test_without_open3d_the_table_has_no_open3d_ratio() -> None:

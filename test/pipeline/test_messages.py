@@ -10,6 +10,7 @@ import threading
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
+from helpers import faces_viewpoint
 from scipy.spatial import cKDTree
 from std_msgs.msg import Header
 
@@ -103,8 +104,7 @@ def test_an_unorganized_cloud_gets_the_ball_pca_normals_facing_the_viewpoint(pca
     assert known.mean() > 0.99
     assert_matches(normals, reference)
     np.testing.assert_allclose(read_field(answer.message, "curvature")[known], curvature[known], atol=1e-6)
-    facing = np.sum(normals[known] * (np.asarray(viewpoint) - points[known]), axis=1)
-    assert (facing > 0).all()
+    assert faces_viewpoint(points[known], normals[known], viewpoint).all()
     assert (answer.points, answer.finite, answer.known) == (len(points), len(points), int(known.sum()))
 
 

@@ -1,12 +1,11 @@
 """The node as a user who changes nothing gets it: the default method (hybrid) on the machine's device (on a CPU the
-range checkpoint on these range images and KD-tree pools, on a GPU the default checkpoint and pixel-grid pools),
-radius 0.05 m.
+range checkpoint on these range images, on a GPU the default checkpoint), radius 0.05 m.
 
-The installed node runs with its default parameters and a short statistics period. Its answers are scored against
-the exact normals of simulated depth-camera views (a full 640x480 frame of a room, and a far wall), and against plain
-PCA of the same balls written in the test (`helpers.ball_pca`): references the package does not compute. The bounds
-sit near what was measured on both devices' plans, so a node that answered with PCA alone, or that lost the cloud's
-organization (and with it the window survey, which allows for the noise along the rays), fails here.
+The installed node runs with its default parameters and a short statistics period. It must answer every return of a
+full 640x480 simulated depth frame, facing the sensor, and keep the cloud's organization: on a far wall, where the
+depth noise is half the radius, only the window survey that reads the cloud as an image finds the wall, scored against
+the exact normal and against plain PCA of the same balls written in the test (`helpers.ball_pca`). How accurate the
+default is on full frames is test_node_default_accuracy's to say, on the same estimator in this process.
 """
 
 from __future__ import annotations
@@ -17,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import running_node
-from helpers import angles_deg, ball_pca, held_out_depth_frame
+from helpers import angles_deg, ball_pca, faces_viewpoint, held_out_depth_frame
 from probe_client import ProbeClient, matched_client
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field, read_xyz
@@ -46,12 +45,7 @@ def normals_of(msg) -> np.ndarray:
     return np.stack([read_field(msg, f) for f in NORMAL_FIELDS[:3]], axis=1)
 
 
-def msae(normals: np.ndarray, exact: np.ndarray) -> float:
-    """Mean squared angle in rad², sign-invariant (eval's measure; orientation is checked on its own)."""
-    return float(np.mean(np.radians(angles_deg(normals, exact)) ** 2))
-
-
-def test_default_node_answers_a_full_depth_frame_near_its_exact_normals(client: ProbeClient) -> None:
+def test_default_node_answers_every_return_of_a_full_depth_frame_facing_the_sensor(client: ProbeClient) -> None:
     simulated = held_out_depth_frame()
     frame = Frame("simulated room", simulated.points, np.zeros(simulated.face.shape, np.uint32))
     sent = frame.to_cloud(client.header())
@@ -63,22 +57,8 @@ def test_default_node_answers_a_full_depth_frame_near_its_exact_normals(client: 
     normals, curvature = normals_of(out), read_field(out, "curvature")
     valid, answered = simulated.valid.reshape(-1), np.isfinite(normals).all(axis=1)
     assert not answered[~valid].any() and answered[valid].mean() > 0.999  # measured: every return
-    assert (np.einsum("ij,ij->i", -points[answered], normals[answered]) >= 0).all(), "normals must face the sensor"
+    assert faces_viewpoint(points[answered], normals[answered]).all(), "normals must face the sensor"
     assert curvature[answered].min() >= 0 and curvature[answered].max() <= 1 / 3 + 1e-6
-
-    sample = np.sort(np.random.default_rng(0).choice(np.flatnonzero(valid), 5000, replace=False))
-    exact, edge = simulated.normals.reshape(-1, 3)[sample], simulated.near_edge.reshape(-1)[sample]
-    pca, _ = ball_pca(points, sample, RADIUS)
-    node = normals[sample]
-    # Measured (MSAE in rad², overall and at the 642 sampled pixels near an edge): the CPU's plan (the range
-    # checkpoint on this range image) 0.01148 and 0.0879 (with lite 0.00990 and 0.0753: this frame is the one of the
-    # three held-out frames where range loses most, docs/RESULTS.md, "The range checkpoint"), the GPU's plan (run on a
-    # CPU) 0.00946 and 0.0719; plain PCA of the whole ball 0.0239 and 0.184, so the node scores 0.48 x of it, overall
-    # and near edges. A node answering with pca (its windows) scores 0.0343. Bounds: 1.15 x the measured.
-    assert msae(node, exact) < 0.0132 and msae(node[edge], exact[edge]) < 0.101
-    assert msae(node, exact) < 0.55 * msae(pca, exact) and msae(node[edge], exact[edge]) < 0.55 * msae(
-        pca[edge], exact[edge]
-    )
 
 
 def far_wall(depth: float = 3.0, tilt_deg: float = 30.0, seed: int = 0) -> tuple[Frame, np.ndarray]:

@@ -14,7 +14,7 @@ from rclpy.parameter import Parameter
 
 from triplet_normal_ros.core import defaults
 from triplet_normal_ros.core.checkpoint import read_metadata, shipped_checkpoint_path
-from triplet_normal_ros.core.conventions import LIDAR_RADIUS, LIDAR_RANGE_SCALE, PCA_DEFAULT_K
+from triplet_normal_ros.core.conventions import PCA_DEFAULT_K
 from triplet_normal_ros.ros.node import StartupError, TripletNormalNode
 from triplet_normal_ros.ros.params import (
     K_METHOD_DEFAULT,
@@ -277,38 +277,3 @@ def test_a_device_change_builds_a_new_estimator(node: TripletNormalNode) -> None
 def test_bad_startup_parameters_raise_one_startup_error(context: Context, overrides: dict, message: str) -> None:
     with pytest.raises(StartupError, match=message):
         make_node(context, **overrides)
-
-
-def test_shipped_params_file_states_every_default() -> None:
-    """config/params.yaml is what users copy and edit: it must name every parameter with the node's own default."""
-    import yaml
-    from conftest import REPO
-
-    document = yaml.safe_load((REPO / "config" / "params.yaml").read_text())
-    shipped = document["/**"]["ros__parameters"]
-    assert set(shipped) == {spec.name for spec in SPECS}
-    for spec in SPECS:
-        value = shipped[spec.name]
-        assert type(value) is spec.kind, f"{spec.name}: {value!r} must be a {spec.kind.__name__} for rclpy"
-        assert value == spec.default, f"{spec.name}: the file says {value!r}, the node's default is {spec.default!r}"
-
-
-@pytest.mark.parametrize("preset", ["depth_camera", "lidar"])
-def test_sensor_presets_set_only_valid_node_parameters(preset: str) -> None:
-    """config/<preset>.yaml: every key a node parameter of rclpy's type, every value one the node accepts; the depth
-    camera preset is the node's own defaults (the node's default stays right for depth cameras)."""
-    import yaml
-    from conftest import REPO
-
-    values = yaml.safe_load((REPO / "config" / f"{preset}.yaml").read_text())["/**"]["ros__parameters"]
-    specs = {spec.name: spec for spec in SPECS}
-    assert set(values) <= set(specs)
-    for name, value in values.items():
-        assert type(value) is specs[name].kind, f"{name}: {value!r}"
-    assert validate_all(values) is None
-    if preset == "depth_camera":
-        assert all(value == specs[name].default or name == "viewpoint" for name, value in values.items())
-    else:
-        # The values eval measured the LiDAR set with (core/conventions.py, docs/RESULTS.md).
-        assert (values["radius"], values["range_scale"]) == (LIDAR_RADIUS, LIDAR_RANGE_SCALE)
-        assert values["zeros_are_no_returns"] is True

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import PACKAGE, STARTUP_S
-from helpers import angles_deg, ball_pca
+from helpers import angles_deg, ball_pca, faces_viewpoint
 from probe_client import ProbeClient
 from real_recordings import OUSTER, OUSTER_TOPIC, clouds, preset
 
@@ -40,7 +40,7 @@ def test_the_lidar_preset_node_answers_a_real_ouster_scan(start_node, install_pr
         cloud.data
     )
     answered = np.isfinite(normals).all(axis=1)
-    assert (np.einsum("ij,ij->i", -xyz[answered], normals[answered]) >= 0).all(), "normals must face the sensor"
+    assert faces_viewpoint(xyz[answered], normals[answered]).all(), "normals must face the sensor"
     # Plain PCA of each ball, max(radius, range_scale x range) as the preset sets it, at 3000 returns. The node's
     # window survey reads the image, where a ball holds a few rings; the two agree to a median of 2.86 deg and 9.6 deg
     # at the 75th percentile (measured on the CPU's and the GPU's plan alike, sign-invariant: on edge-on surfaces the

@@ -140,7 +140,9 @@ def _settle(client: CheckedClient, node: NodeProcess) -> AfterFlood:
 
 def test_the_flood_reached_the_node(outcome: Outcome) -> None:
     result, totals = outcome.soak, outcome.after.totals
-    assert result.sent >= 0.5 * SECONDS * RATE_HZ, f"the client sent only {result.sent} clouds"
+    # How many clouds the client manages in SECONDS depends on the machine; a flood is more than the node's reliable
+    # input queue holds. Whether it was long enough for the memory check to see a leak, that check says itself.
+    assert result.sent > FLOOD_DEPTH, f"the client sent only {result.sent} clouds"
     assert totals is not None and totals.arrived <= result.sent
     assert totals.arrived >= 0.9 * result.sent, f"reliable input lost clouds: {totals.arrived} of {result.sent}"
 

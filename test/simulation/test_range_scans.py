@@ -4,6 +4,10 @@ determinism and the cache, the LiDAR ring structure, and that PCA recovers the f
 from __future__ import annotations
 
 import itertools
+import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -247,3 +251,31 @@ def test_pca_recovers_floor_normal_away_from_edges(frame) -> None:
     normals, _ = NormalEstimator("pca", radius=EDGE_RADIUS).estimate(points, query=query)
     angles = _angles_deg(normals, frame.normals.reshape(-1, 3)[query], signed=False)
     assert np.median(angles) < 1.0 and np.percentile(angles, 95) < 3.0  # measured 0.5 and 1.2 degrees
+
+
+_CACHED_KEY = """
+import sys
+from pathlib import Path
+from simulation.range_scans import depth_frames
+depth_frames(1, seed=7, width=160, height=120, cache_dir=Path(sys.argv[1]))
+"""
+
+
+def test_the_cache_key_follows_the_simulators_source(tmp_path) -> None:
+    """A copy of the simulator writes a frame; after an edit to one of its scene modules the same call must not read
+    that entry (it writes one under a new key), while the unedited copy reads its own entry again."""
+    copy = tmp_path / "src" / "simulation"
+    shutil.copytree(Path(depth_frames.__code__.co_filename).parent, copy, ignore=shutil.ignore_patterns("__pycache__"))
+    cache = tmp_path / "cache"
+
+    def entries() -> set[str]:
+        subprocess.run([sys.executable, "-c", _CACHED_KEY, str(cache)], cwd=copy.parent, check=True, timeout=300)
+        return {path.name for path in cache.glob("depth-*.npz")}
+
+    first = entries()
+    assert len(first) == 1
+    assert entries() == first  # unchanged source: the entry is read, no other written
+    with (copy / "depth_camera.py").open("a") as module:
+        module.write("\n# an edit\n")
+    edited = entries()
+    assert len(edited) == 2 and first < edited

@@ -1,5 +1,6 @@
 """Training end to end at toy scale: the losses fall, the checkpoint loads, resuming continues, triplets obey the
-paper's constraints on generated data."""
+paper's constraints on generated data. The tests that train are marked slow; the refusals and the recipe checks take
+well under a second each and run in `make test-fast`."""
 
 import argparse
 import json
@@ -23,8 +24,6 @@ from triplet_normal_ros.training.dataset import build_dataset
 from triplet_normal_ros.training.recipes import RECIPES
 from triplet_normal_ros.training.trainer import TrainingRun, _mean_loss, _recipe_loss, _samplers, _val_patches
 from triplet_normal_ros.training.triplets import mine_triplets
-
-pytestmark = pytest.mark.slow  # training runs: `make test-fast` deselects this module
 
 TOY = (
     "--recipe cpu --shapes box_3x2x1 sphere --val-shapes v_notch_block --n-points 3000 --k 32 --patches-per-shape 96 "
@@ -63,6 +62,7 @@ def _weights(path: Path) -> dict[str, torch.Tensor]:
     return model.state_dict()
 
 
+@pytest.mark.slow  # a training run
 def test_regressor_loss_falls(toy_run):
     rows = [h for h in json.loads((toy_run / "history.json").read_text())["history"] if h["phase"] == "regressor"]
     assert len(rows) == 6
@@ -70,6 +70,7 @@ def test_regressor_loss_falls(toy_run):
     assert min(h["val"] for h in rows) < rows[0]["val"]
 
 
+@pytest.mark.slow  # a training run
 def test_finetune_phase_runs_end_to_end(toy_run):
     history = json.loads((toy_run / "history.json").read_text())["history"]
     assert [h["phase"] for h in history] == ["encoder"] + ["regressor"] * 6 + ["finetune"] * 2
@@ -83,6 +84,7 @@ def test_finetune_phase_runs_end_to_end(toy_run):
     assert {h["n"] for h in history if h["phase"] == "regressor"} == {clouds * 256}
 
 
+@pytest.mark.slow  # a training run
 def test_checkpoint_records_recipe_and_loads(toy_run):
     meta = read_metadata(toy_run / "model.safetensors")
     assert meta["k"] == 32
@@ -95,6 +97,7 @@ def test_checkpoint_records_recipe_and_loads(toy_run):
     assert (toy_run / "training_curves.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow  # a training run
 def test_resume_continues_where_it_stopped(tmp_path):
     run_dir = tmp_path / "resume"
     train.run(_args("--encoder-epochs 1 --regressor-epochs 2", run_dir))
@@ -119,6 +122,7 @@ def _interrupted_after_worse_epochs(run_dir: Path) -> None:
     torch.save(state, run_dir / "state.pt")
 
 
+@pytest.mark.slow  # a training run
 @pytest.mark.parametrize("more", [0, 2])  # resumed with no epoch of phase (b) left, or with two more
 def test_a_resumed_run_ships_its_best_weights_from_before_the_interruption(tmp_path, more):
     run_dir = tmp_path / "best"
@@ -139,6 +143,7 @@ def test_a_resumed_run_ships_its_best_weights_from_before_the_interruption(tmp_p
     assert (state["best"]["phase"], state["best"]["epoch"]) == tuple(before["best_epoch"].values())
 
 
+@pytest.mark.slow  # a training run
 def test_a_run_stopped_in_phase_c_resumes_there(tmp_path):
     run_dir = tmp_path / "finetune"
     common = "--encoder-epochs 1 --regressor-epochs 1 --finetune-patches-per-shape 64"
@@ -191,6 +196,7 @@ def test_triplet_patches_are_seen_in_the_anchor_frame():
     assert triplets.positive.norm(dim=-1).max() <= 1.0 + 1e-5  # still the unit ball: scaled by the radius
 
 
+@pytest.mark.slow  # a training run
 def test_cpu_recipe_options_residual_head_and_relative_loss_reach_the_checkpoint(tmp_path):
     run_dir = tmp_path / "residual"
     extra = "--encoder-epochs 1 --regressor-epochs 3 --residual --loss relative --relative-floor-deg 7.5"
@@ -246,6 +252,7 @@ def test_a_relative_floor_without_the_relative_loss_is_refused(tmp_path):
         train.recipe_from_args(args)
 
 
+@pytest.mark.slow  # a training run
 def test_resuming_under_a_recipe_that_optimises_something_else_is_refused(tmp_path):
     run_dir = tmp_path / "switch"
     train.run(_args("--encoder-epochs 1 --regressor-epochs 1", run_dir))
@@ -273,6 +280,7 @@ def test_an_unknown_training_shape_is_one_error_line_from_the_command(tmp_path, 
     assert "'box_3x2x1'" in err  # it names the shapes that exist
 
 
+@pytest.mark.slow  # a training run
 def test_a_run_without_normal_loss_epochs_reports_that_instead_of_crashing(tmp_path, capsys):
     run_dir = tmp_path / "encoder_only"
     argv = ["train", *TOY.split(), "--encoder-epochs", "1", "--regressor-epochs", "0", "--run-dir", str(run_dir)]
@@ -282,6 +290,7 @@ def test_a_run_without_normal_loss_epochs_reports_that_instead_of_crashing(tmp_p
     assert [h["phase"] for h in history["history"]] == ["encoder"] and history["final_val_normal_loss"] is None
 
 
+@pytest.mark.slow  # a training run
 def test_a_scale_head_trains_on_the_plane_fits_and_its_checkpoint_records_the_scales(tmp_path):
     run_dir = tmp_path / "scales"
     train.run(
@@ -298,6 +307,7 @@ def test_a_scale_head_trains_on_the_plane_fits_and_its_checkpoint_records_the_sc
         train.run(_args(argv, run_dir))
 
 
+@pytest.mark.slow  # a training run
 def test_a_state_written_before_scales_existed_resumes_as_a_run_without_them(tmp_path):
     run_dir = tmp_path / "old_state"
     train.run(_args("--encoder-epochs 1 --regressor-epochs 1", run_dir))
@@ -317,6 +327,7 @@ def test_scales_that_cannot_work_are_one_usage_error(scales, tmp_path):
         train.recipe_from_args(_args(f"--scales {scales}", tmp_path))
 
 
+@pytest.mark.slow  # a training run
 def test_range_frames_join_the_training_and_validation_clouds_at_their_metric_radii(tmp_path):
     from triplet_normal_ros.simulation.range_scans import depth_frames, lidar_scans
     from triplet_normal_ros.training.trainer import _range_samplers

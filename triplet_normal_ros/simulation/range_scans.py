@@ -30,7 +30,20 @@ from .lidar import lidar_scan
 from .range_frame import RangeFrame
 from .seeds import derive_seed
 
-CODE_VERSION = 1  # bump when a scene, the sensor models or the edge mask change: stale cache entries are then ignored
+
+def _source_digest() -> str:
+    """SHA-256 of this package's modules: a frame is a function of them and of its key's parameters alone (numpy and
+    scipy aside), so any edit to a scene, a sensor model or the edge mask changes every key and no stale frame is
+    read."""
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
+        source = path.read_bytes()
+        digest.update(f"{path.name}\n{len(source)}\n".encode() + source)
+    return digest.hexdigest()
+
+
+#: Part of every cache key: the frames' source, so the key follows the code without a hand-kept version number.
+SOURCE_DIGEST = _source_digest()
 #: Frame seeds of each use, so no frame is both trained and scored on: eval 0 (frames 0-2; fold frames 0-5), the
 #: hybrid gate and survey studies 100 (docs/tools/gate_study.py, docs/tools/fold_study.py), training 200, training
 #: validation 300.
@@ -79,7 +92,7 @@ def _cached_frames(
     frames = []
     for i in range(count):
         frame_seed = derive_seed(seed, kind, i)
-        blob = json.dumps([kind, params, frame_seed, EDGE_RADIUS, CODE_VERSION], sort_keys=True)
+        blob = json.dumps([kind, params, frame_seed, EDGE_RADIUS, SOURCE_DIGEST], sort_keys=True)
         path = root / f"{kind}-{hashlib.sha256(blob.encode()).hexdigest()[:16]}.npz" if root else None
         frame = _load_frame(path, shape) if path and path.exists() else None
         if frame is None:
