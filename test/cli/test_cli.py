@@ -165,7 +165,7 @@ def test_update_section_replaces_only_its_block(tmp_path: Path) -> None:
 def test_eval_sets_rewrites_only_the_chosen_blocks(tmp_path: Path) -> None:
     """--sets lidar runs the LiDAR scans alone: no PCPNet directory needed, every other block left as it was."""
     doc = tmp_path / "docs" / "RESULTS.md"
-    for block in ("eval-val", "eval-depth", "eval-fold", "eval-lidar", "eval-pcpnet"):
+    for block in ("eval-val", "eval-depth", "eval-fold", "eval-lidar", "eval-segment", "eval-pcpnet"):
         update_section(doc, block, "kept")
     done = run_cli(
         "eval", "--quick", "--sets", "lidar", "--pcpnet-dir", tmp_path / "absent", "--out", doc,
@@ -173,7 +173,8 @@ def test_eval_sets_rewrites_only_the_chosen_blocks(tmp_path: Path) -> None:
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert "radius 0.25 m" in read_section(doc, "eval-lidar")
-    assert [read_section(doc, b) for b in ("eval-val", "eval-depth", "eval-fold", "eval-pcpnet")] == ["kept"] * 4
+    kept = ("eval-val", "eval-depth", "eval-fold", "eval-segment", "eval-pcpnet")
+    assert [read_section(doc, b) for b in kept] == ["kept"] * 5
 
 
 def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
@@ -209,6 +210,14 @@ def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
         assert ball.endswith("%") and 0 <= float(ball[:-1]) < 100
         answered = rows["PCA, window (integral images, the whole ball)"]["answered"]
         assert answered.endswith("%") and 50 < float(answered[:-1]) <= 100  # the share with a normal
+    segments = read_section(doc, "eval-segment")  # planar segmentation by region growing on the fold frames
+    cells = [[c.strip() for c in line.split("|")[1:-1]] for line in segments.splitlines() if line.startswith("| ")]
+    rows = {c[0]: c for c in cells[2:]}
+    assert rows["exact normals (the reference)"][1:4] == ["1.000", "1.000", "100% (4 of 4)"]
+    ari = float(rows["PCA, k = 30"][1])
+    assert -1.0 <= ari < 1.0  # scattered normals cost segments
+    assert "images/segments_fold.png" in segments
+    assert (doc.parent / "images" / "segments_fold.png").stat().st_size > 10_000
 
 
 def test_eval_without_pcpnet_dir_fails_before_working(tmp_path: Path) -> None:

@@ -16,7 +16,9 @@ import numpy as np
 from ..core.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from ..errors import CloudFileError
 from ..io.cloud_files import read_normals_file, read_points
+from . import segment_eval
 from .metrics import angles_rad, invalid_count, msae, ratio_interval, rmse_deg
+from .report import update_section
 
 PCA_GRID = (0.01, 0.02, 0.03, 0.04, 0.05, 0.07, 0.10)
 PCPNET_SHAPES = ("cube100k", "fandisk100k", "bunny100k", "armadillo100k")
@@ -189,12 +191,11 @@ def run(
     out: Path | None,
     quick: bool,
     command: str,
-    sets: tuple[str, ...] = ("val", "depth", "fold", "lidar", "pcpnet"),
+    sets: tuple[str, ...] = ("val", "depth", "fold", "lidar", "segment", "pcpnet"),
 ) -> None:
     """Each of `sets` (all by default): tables to stdout and, with `out`, into that markdown file (plus the fandisk
     heat map with pcpnet); blocks of sets not run are left as they are."""
     from . import range_eval
-    from .report import update_section
 
     checkpoint = checkpoint or "default"  # eval scores the shipped default unless told otherwise
     per_cloud = min(points_per_cloud, 200) if quick else points_per_cloud
@@ -223,6 +224,8 @@ def run(
         if out is not None:
             update_section(out, f"eval-{kind}", markdown)
 
+    if "segment" in sets:
+        _segment_set(device, quick, header, out)
     if "pcpnet" not in sets:
         return
     start = time.perf_counter()
@@ -233,6 +236,20 @@ def run(
     print(pcp_md)
     if out is not None:
         update_section(out, "eval-pcpnet", pcp_md)
+
+
+def _segment_set(device: str, quick: bool, header: str, out: Path | None) -> None:
+    """The segmentation set: its table to stdout and, with `out`, into the eval-segment block beside its picture."""
+    start = time.perf_counter()
+    scores, summary = segment_eval.evaluate_segments(segment_eval.segment_estimators(device), quick)
+    image = None
+    if out is not None:
+        image = segment_eval.draw_segments(summary["picture"], Path(out).parent / "images" / "segments_fold.png")
+    markdown = segment_eval.segment_markdown(scores, summary, header.split("\n")[0], image)
+    markdown += f"\n\nWall time {(time.perf_counter() - start) / 60:.1f} min."
+    print(markdown)
+    if out is not None:
+        update_section(out, "eval-segment", markdown)
 
 
 def pcpnet_shapes_present(directory: Path) -> None:
