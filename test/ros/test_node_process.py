@@ -35,7 +35,7 @@ from conftest import (
     shm_segments,
     site_packages,
 )
-from helpers import angles_deg, ball_pca, held_out_depth_frame
+from helpers import angles_deg, ball_pca, held_out_depth_frame, write_points
 from probe_client import ProbeClient, cropped, matched_client
 from scipy.spatial import cKDTree
 from sensor_msgs.msg import PointCloud2, PointField
@@ -130,6 +130,24 @@ def test_the_installed_copy_is_what_runs(install_prefix: Path, ros_env: dict[str
         "frame_20121214T142255.npz",
         "table_scene_mug.npz",
     ]
+
+
+def test_the_offline_cli_runs_from_the_colcon_install(
+    install_prefix: Path, ros_env: dict[str, str], tmp_path: Path
+) -> None:
+    """What `ros2 run triplet_normal_ros triplet-normal` runs after `colcon build`: the executable under
+    lib/triplet_normal_ros, with the install's copy of the package, estimating a cloud file end to end."""
+    executable = install_prefix / "lib" / PACKAGE / "triplet-normal"
+    assert executable.is_file() and os.access(executable, os.X_OK)
+    rng = np.random.default_rng(0)
+    plane = np.column_stack([rng.uniform(-1, 1, (2000, 2)), np.zeros(2000)])
+    write_points(tmp_path / "plane.xyz", plane)
+    command = [str(executable), "estimate", "plane.xyz", "--method", "pca", "--radius", "0.2", "--out", "plane.normals"]
+    env = installed_env(install_prefix, ros_env)
+    done = subprocess.run(command, env=env, capture_output=True, text=True, cwd=tmp_path, timeout=STARTUP_S)
+    assert done.returncode == 0, done.stderr[-3000:]
+    normals = np.loadtxt(tmp_path / "plane.normals")
+    assert normals.shape == (2000, 3) and np.allclose(np.abs(normals[:, 2]), 1.0, atol=1e-3)
 
 
 # -- a real frame ---------------------------------------------------------------------------------------------------
