@@ -22,7 +22,7 @@ COMMON := \
 	rosbags==0.11.9 safetensors==0.8.0 trimesh==5.2.0 manifold3d==3.5.4 rtree==1.4.1 pypcd4==1.5.1 \
 	tqdm==4.70.1 matplotlib==3.11.2 \
 	ray==2.60.0 \
-	pytest==9.2.0 hypothesis==6.170.15 ruff==0.17.6
+	pytest==9.2.0 hypothesis==6.170.15 ruff==0.17.6 vermin==1.9.2
 PINS := $(COMMON) $(KILTED)
 
 .PHONY: venv venv-jazzy demo test test-jazzy test-fast lint bench eval train clean
@@ -69,8 +69,11 @@ demo: venv
 	@echo "make demo: running the installed node on the shipped frames"
 	@$(PY) -m triplet_normal_ros.ros.demo --prefix $(WS)/install/triplet_normal_ros --out out
 
+# vermin: the lowest Python the code needs must stay setup.py's python_requires (3.10, Humble's Ubuntu 22.04).
+MIN_PYTHON := 3.10
 lint: venv
 	$(VENV)/bin/ruff check --config .ci/ruff.toml triplet_normal_ros test docs/tools
+	$(VENV)/bin/vermin --no-tips --violations --eval-annotations -t=$(MIN_PYTHON)- triplet_normal_ros launch test docs/tools setup.py
 
 # `make test` (CI): lint, then every test, including the `slow` ones (colcon builds, the node as a separate process,
 # training runs, accuracy checks of the shipped checkpoint, eval --quick, CLI subprocesses).

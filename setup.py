@@ -18,6 +18,7 @@ setup(
         (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml") + glob("config/*.xml"))),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
+    python_requires=">=3.10",  # the lowest the code needs: `make lint` checks it with vermin
     install_requires=["setuptools", "numpy", "scipy", "numba", "torch", "tqdm"],
     extras_require={
         "test": ["pytest", "hypothesis", "safetensors"],

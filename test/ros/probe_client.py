@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
+from rcl_interfaces.msg import ParameterDescriptor
 from sensor_msgs.msg import PointCloud2
 
 from triplet_normal_ros.ros.replay import Frame, ReplayClient
@@ -35,6 +36,13 @@ class ProbeClient(ReplayClient):
     def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
         """Serve callbacks until ``done()`` is true (returns True) or ``timeout`` s have passed (returns done())."""
         return self._spin_until(done, timeout)
+
+    def describe_parameters(self, names: list[str], timeout: float = 60.0) -> list[ParameterDescriptor]:
+        """The node's descriptors of `names` from its describe_parameters service, which `ros2 param describe`
+        calls."""
+        future = self._params.describe_parameters(names)
+        assert self._spin_until(future.done, timeout), "no answer from the describe_parameters service"
+        return list(future.result().descriptors)
 
 
 def cropped(frame: Frame, top: int, left: int, height: int, width: int) -> Frame:

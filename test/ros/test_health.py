@@ -134,6 +134,21 @@ def test_drops_are_a_warning() -> None:
     assert c.health().level == OK, "drops are counted per window"
 
 
+def test_drops_by_deactivate_or_cleanup_are_counted_but_no_warning() -> None:
+    """The operator's transition dropped them, not an input faster than the node: counted, and said apart."""
+    c = Clocked()
+    c.stats.record(900.0)
+    c.stats.drop()
+    c.dropped = 1  # and one the input outran
+    health = c.health()
+    assert (health.level, health.message) == (WARN, "1 dropped in the last 1 s: input faster than processing")
+    assert (values(health)["dropped"], values(health)["total dropped"]) == ("2", "2")
+    assert values(health)["total dropped by deactivate or cleanup"] == "1"
+    c.stats.drop()
+    health = c.health()
+    assert health.level == OK and values(health)["total dropped by deactivate or cleanup"] == "2"
+
+
 def test_findings_of_the_highest_level_are_joined_and_lower_ones_left_out() -> None:
     c = Clocked()
     c.stats.record(1.0)

@@ -23,7 +23,7 @@ from rclpy.qos import QoSProfile
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field
 from triplet_normal_ros.ros.replay import RELIABLE_INPUT, SENSOR_INPUT, Frame, ReplayClient, load_frame
-from triplet_normal_ros.ros.transport import PROFILE_ENV, PROFILE_NAME
+from triplet_normal_ros.ros.transport import LEGACY_PROFILE_ENV, PROFILE_NAME, fast_dds_major, read_by, ros_prefixes
 
 pytestmark = pytest.mark.slow  # colcon build, a node process, full frames
 
@@ -49,10 +49,17 @@ def test_the_node_loads_the_shipped_profile_by_default(node: NodeProcess, instal
     assert f"transport: Fast DDS profile {shipped} (shipped;" in node.log, node.log[-3000:]
 
 
+def test_the_node_sets_no_variable_its_fast_dds_warns_about(node: NodeProcess) -> None:
+    """Kilted's rmw_fastrtps (Fast DDS 3) warns at every start when the old variable is set; the node sets only the
+    one its Fast DDS reads. On Jazzy the full frames below prove that variable is the one in force."""
+    assert "deprecated" not in node.log and LEGACY_PROFILE_ENV not in node.log, node.log[-3000:]
+
+
 @pytest.mark.parametrize(("qos", "frames"), [(SENSOR_INPUT, 3), (RELIABLE_INPUT, 2)], ids=["best_effort", "reliable"])
 def test_every_full_frame_is_answered(node: NodeProcess, frame: Frame, qos: QoSProfile, frames: int) -> None:
     """Each 9.8 MB frame is sent once and answered with its own stamp, size and finite normals."""
-    assert os.environ.get(PROFILE_ENV, "").endswith(PROFILE_NAME), "the driver side (this process) lacks the profile"
+    (variable,) = read_by(fast_dds_major(ros_prefixes(os.environ)))[0]
+    assert os.environ.get(variable, "").endswith(PROFILE_NAME), "the driver side (this process) lacks the profile"
     with ReplayClient(IN, OUT, input_qos=qos) as client:
         assert client.wait_for_node(60), "the node's topics and parameter services never matched"
         # Matching is not delivery: a best-effort sample sent the moment discovery matches can be lost while the

@@ -135,3 +135,13 @@ def test_matches_a_one_slot_model(ops: list[int | None]) -> None:
             dropped += slot is not None
             slot = op
     assert box.dropped == dropped
+
+
+def test_discard_empties_the_slot_and_says_whether_a_cloud_waited() -> None:
+    box: Mailbox[int] = Mailbox()
+    assert box.discard() is False
+    box.put(1)
+    assert box.discard() is True and box.get(timeout=0) is None
+    assert box.dropped == 0  # the discarding node counts it, as dropped by its transition
+    box.put(2)
+    assert box.get(timeout=0) == 2  # still open

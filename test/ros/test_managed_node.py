@@ -9,12 +9,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import STARTUP_S, NodeProcess, left_behind, shm_segments
+from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from probe_client import ProbeClient, cropped
 from sensor_msgs.msg import PointCloud2
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field
+from triplet_normal_ros.ros import diagnostics
 from triplet_normal_ros.ros.managed_node import NODE_NAME
 from triplet_normal_ros.ros.replay import Frame, load_frame
 
@@ -27,13 +29,23 @@ EXECUTABLE = "managed_node"
 WAIT_S = STARTUP_S
 
 
+#: A full frame with the 500 nearest points from the KD-tree: an estimate that stays in flight for seconds (7-30 s
+#: on two cores), long enough to deactivate while a second cloud waits behind it.
+SLOW_PARAMS = {**PCA_PARAMS, "radius": 0.05, "k": 500, "neighbours": "kdtree"}
+
+
 class LifecycleProbe(ProbeClient):
-    """A ProbeClient that also calls the node's lifecycle services."""
+    """A ProbeClient that also calls the node's lifecycle services and keeps what it hears on /diagnostics."""
 
     def __init__(self) -> None:
         super().__init__(IN, OUT)
         self._change = self.node.create_client(ChangeState, f"/{NODE_NAME}/change_state")
         self._get = self.node.create_client(GetState, f"/{NODE_NAME}/get_state")
+        self.diagnostics: list[dict[str, str]] = []
+        self.node.create_subscription(DiagnosticArray, diagnostics.TOPIC, self._on_diagnostics, diagnostics.DEPTH)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        self.diagnostics += [{kv.key: kv.value for kv in status.values} for status in msg.status if status.values]
 
     def _call(self, client, request):
         assert client.wait_for_service(WAIT_S), f"no {client.srv_name} service"
@@ -115,6 +127,49 @@ def test_every_transition_through_the_lifecycle_services(start_node) -> None:
         assert line in node.log, line
     assert node.log.count("configured: method=pca") == 2
     assert "shut down" in node.log and "Traceback" not in node.log
+
+
+def _totals_line(node: NodeProcess, totals: str) -> bool:
+    """Wait for a statistics line whose running totals read `totals` ('2 arrived, 0 clouds, 1 dropped')."""
+    return node.wait_for_log(f"| total: {totals}, 0 rejected", WAIT_S)
+
+
+def _dropped_heard(probe: LifecycleProbe, total: int) -> bool:
+    """Wait for a /diagnostics status that counts `total` dropped clouds, all of them by deactivate or cleanup."""
+    return probe.spin_until(
+        lambda: any(
+            d.get("total dropped") == str(total) and d.get("total dropped by deactivate or cleanup") == str(total)
+            for d in probe.diagnostics
+        ),
+        WAIT_S,
+    )
+
+
+def test_clouds_dropped_by_deactivate_and_cleanup_are_counted_in_the_log_and_diagnostics(start_node) -> None:
+    """A full frame in flight and a small cloud waiting behind it: deactivate drops the waiting one and reports it
+    at once; the frame in flight finishes after the cleanup that follows and is not sent. Both count as dropped, in
+    the statistics line and on /diagnostics, as soon as the node reports again."""
+    node = _start(start_node, SLOW_PARAMS)
+    frame = load_frame("table_scene_mug")
+    with LifecycleProbe() as probe:
+        assert probe.change(Transition.TRANSITION_CONFIGURE) and probe.change(Transition.TRANSITION_ACTIVATE)
+        assert probe.subscribed(True)
+        probe.send(frame.to_cloud(probe.header()))
+        assert node.wait_for_log(", 1 in flight for ", WAIT_S), node.log[-3000:]
+        probe.send(_cloud(probe, frame))
+        assert _totals_line(node, "2 arrived, 0 clouds, 0 dropped"), node.log[-3000:]  # the small one waits
+        assert probe.change(Transition.TRANSITION_DEACTIVATE)
+        assert _totals_line(node, "2 arrived, 0 clouds, 1 dropped"), node.log[-3000:]  # reported by the deactivate
+        assert _dropped_heard(probe, 1), probe.diagnostics[-1:]
+        assert probe.change(Transition.TRANSITION_CLEANUP)
+        assert node.wait_for_log("dropped the answer to the cloud in flight", WAIT_S), node.log[-3000:]
+        assert probe.change(Transition.TRANSITION_CONFIGURE) and probe.change(Transition.TRANSITION_ACTIVATE)
+        assert _totals_line(node, "2 arrived, 0 clouds, 2 dropped"), node.log[-3000:]
+        assert _dropped_heard(probe, 2), probe.diagnostics[-1:]
+        assert probe.answers_received == 0
+        assert probe.change(Transition.TRANSITION_ACTIVE_SHUTDOWN)
+    assert node.proc.wait(WAIT_S) == 0, node.log[-3000:]
+    assert "input faster than processing" not in node.log and "Traceback" not in node.log
 
 
 def test_a_failed_configure_leaves_the_node_unconfigured_alive_and_fixable(start_node) -> None:

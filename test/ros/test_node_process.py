@@ -35,13 +35,13 @@ from conftest import (
     shm_segments,
     site_packages,
 )
-from helpers import angles_deg, ball_pca, faces_viewpoint, held_out_depth_frame
+from helpers import angles_deg, ball_pca, faces_viewpoint, held_out_depth_frame, write_points
 from probe_client import ProbeClient, cropped, matched_client
 from scipy.spatial import cKDTree
 from sensor_msgs.msg import PointCloud2, PointField
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, make_cloud, read_field, read_xyz
-from triplet_normal_ros.ros.params import NodeSettings
+from triplet_normal_ros.ros.params import SPECS, NodeSettings
 from triplet_normal_ros.ros.replay import Frame, load_frame
 
 pytestmark = pytest.mark.slow  # colcon builds and node processes
@@ -132,6 +132,24 @@ def test_the_installed_copy_is_what_runs(install_prefix: Path, ros_env: dict[str
     ]
 
 
+def test_the_offline_cli_runs_from_the_colcon_install(
+    install_prefix: Path, ros_env: dict[str, str], tmp_path: Path
+) -> None:
+    """What `ros2 run triplet_normal_ros triplet-normal` runs after `colcon build`: the executable under
+    lib/triplet_normal_ros, with the install's copy of the package, estimating a cloud file end to end."""
+    executable = install_prefix / "lib" / PACKAGE / "triplet-normal"
+    assert executable.is_file() and os.access(executable, os.X_OK)
+    rng = np.random.default_rng(0)
+    plane = np.column_stack([rng.uniform(-1, 1, (2000, 2)), np.zeros(2000)])
+    write_points(tmp_path / "plane.xyz", plane)
+    command = [str(executable), "estimate", "plane.xyz", "--method", "pca", "--radius", "0.2", "--out", "plane.normals"]
+    env = installed_env(install_prefix, ros_env)
+    done = subprocess.run(command, env=env, capture_output=True, text=True, cwd=tmp_path, timeout=STARTUP_S)
+    assert done.returncode == 0, done.stderr[-3000:]
+    normals = np.loadtxt(tmp_path / "plane.normals")
+    assert normals.shape == (2000, 3) and np.allclose(np.abs(normals[:, 2]), 1.0, atol=1e-3)
+
+
 # -- a real frame ---------------------------------------------------------------------------------------------------
 
 
@@ -203,8 +221,11 @@ def test_learned_method_on_a_small_crop_is_near_its_exact_normals(client: ProbeC
 @pytest.mark.parametrize(
     ("values", "reason"),
     [
-        ({"radius": -1.0}, "radius"),
-        ({"k": 2}, "k"),
+        ({"radius": -1.0}, "Parameter radius out of range"),  # rclpy's words for its range
+        ({"range_scale": 1.5}, "Parameter range_scale out of range"),
+        ({"radius": 0.0}, "radius must be a finite number > 0 (metres), got 0.0"),  # the rule's, for what a range
+        ({"k": 2}, "k must be an integer >= 3, got 2 (0 means the method's default)"),  # cannot say
+        ({"batch_size": 0}, "Parameter batch_size out of range"),
         ({"method": "svm"}, "method"),
         ({"device": "tpu"}, "device"),
         ({"viewpoint": [1.0, 2.0]}, "viewpoint"),
@@ -216,6 +237,23 @@ def test_bad_parameters_are_rejected_with_a_reason(client: ProbeClient, values: 
     ok, why = client.set_parameters(values)
     assert not ok
     assert reason in why
+
+
+def test_the_describe_service_gives_every_numbers_range(client: ProbeClient) -> None:
+    """What `ros2 param describe` shows and rqt_reconfigure draws: the node's describe_parameters service returns the
+    inclusive range of every number parameter (integers in steps of 1, doubles with step 0: any value between)."""
+    descriptors = client.describe_parameters([spec.name for spec in SPECS])
+    assert [d.name for d in descriptors] == [spec.name for spec in SPECS]
+    numbers = 0
+    for spec, d in zip(SPECS, descriptors, strict=True):
+        if spec.kind is int:
+            assert [(r.from_value, r.to_value, r.step) for r in d.integer_range] == [(*spec.bounds, 1)], spec.name
+        elif spec.kind is float:
+            assert [(r.from_value, r.to_value, r.step) for r in d.floating_point_range] == [(*spec.bounds, 0.0)]
+        else:
+            assert not d.integer_range and not d.floating_point_range, spec.name
+        numbers += spec.kind in (int, float)
+    assert numbers == 9  # batch_size, radius, k, gate, bend, range_scale, stats_period and the markers' two
 
 
 def test_parameter_changes_apply_to_the_next_cloud(client: ProbeClient, frame: Frame) -> None:

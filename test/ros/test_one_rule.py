@@ -2,7 +2,8 @@
 words, those of the setting's rule (`core.settings.reason`; the viewpoint's is `pipeline.messages.viewpoint_reason`).
 
 The CLI puts the option's name where the rule names the setting; the node adds what its k of 0 means. The node is a
-real rclpy node, so this also shows that no descriptor range answers before the rule does.
+real rclpy node, whose descriptors carry ranges: a value outside one is refused by rclpy first, in its own words
+("Parameter radius out of range"), and every value a range holds gets the rule's words (radius 0, k 2).
 """
 
 from __future__ import annotations
@@ -20,11 +21,12 @@ from triplet_normal_ros.cli.main import main
 from triplet_normal_ros.core.settings import reason
 from triplet_normal_ros.pipeline.messages import viewpoint_reason
 from triplet_normal_ros.ros.node import TripletNormalNode
-from triplet_normal_ros.ros.params import K_METHOD_DEFAULT, validate
+from triplet_normal_ros.ros.params import K_METHOD_DEFAULT, SPEC_BY_NAME, validate
 
 NAN = float("nan")
 #: (setting, option, bad value): each refused by its rule.
 CASES = [
+    ("radius", "radius", 0.0),  # inside the descriptor's range [0, max]: only the rule can refuse it
     ("radius", "radius", -1.0),
     ("radius", "radius", NAN),
     ("k", "k", 2),
@@ -91,8 +93,21 @@ def node(ros_env: dict[str, str]) -> Iterator[TripletNormalNode]:
     rclpy.try_shutdown(context=context)
 
 
-def test_the_running_node_refuses_in_the_rules_words(node: TripletNormalNode) -> None:
+def outside_the_range(name: str, value: object) -> bool:
+    """Whether rclpy's range check refuses `value` before the rule is asked (NaN is outside every range)."""
+    bounds = SPEC_BY_NAME[name].bounds
+    return bounds is not None and not bounds[0] <= value <= bounds[1]
+
+
+def test_the_running_node_refuses_in_the_rules_words_where_the_range_holds_the_value(node: TripletNormalNode) -> None:
+    inside = 0
     for name, _, value in CASES:
         result = node.set_parameters([Parameter(name, value=value)])[0]
-        assert not result.successful and result.reason == node_words(name, value), name
+        assert not result.successful, name
+        if outside_the_range(name, value):
+            assert result.reason.startswith(f"Parameter {name} out of range"), result.reason
+        else:
+            assert result.reason == node_words(name, value), name
+            inside += 1
+    assert inside == 5  # radius 0, k 2, and the two devices and the viewpoint, which no range describes
     assert node.set_parameters([Parameter("k", value=K_METHOD_DEFAULT)])[0].successful  # 0: the method's default

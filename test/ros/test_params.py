@@ -35,6 +35,17 @@ def test_every_default_is_valid(spec) -> None:
     assert validate(spec.name, spec.default) is None
 
 
+@pytest.mark.parametrize("spec", [s for s in SPECS if s.kind in (int, float)], ids=lambda s: s.name)
+def test_every_number_has_a_range_that_holds_all_its_rule_accepts(spec) -> None:
+    """rclpy refuses a value outside the descriptor's range before the rule is asked: just outside either end the
+    rule must refuse too, so the range never refuses a value the package accepts; the default lies inside."""
+    lo, hi = spec.bounds
+    assert lo <= spec.default <= hi
+    below = lo - 1 if spec.kind is int else np.nextafter(lo, -np.inf)
+    above = hi + 1 if spec.kind is int else float("inf")
+    assert validate(spec.name, spec.kind(below)) and validate(spec.name, spec.kind(above))
+
+
 def test_settings_defaults_agree_with_the_declared_defaults() -> None:
     settings = NodeSettings()
     for f in fields(NodeSettings):
@@ -168,9 +179,46 @@ def test_declared_with_descriptors_ranges_and_descriptions(node: TripletNormalNo
         assert d.description == spec.description
         assert d.read_only == spec.read_only
         if spec.bounds and spec.kind is int:
-            assert (d.integer_range[0].from_value, d.integer_range[0].to_value) == spec.bounds
+            assert (d.integer_range[0].from_value, d.integer_range[0].to_value, d.integer_range[0].step) == (
+                *spec.bounds,
+                1,
+            )
         elif spec.bounds:
-            assert (d.floating_point_range[0].from_value, d.floating_point_range[0].to_value) == spec.bounds
+            r = d.floating_point_range[0]
+            assert (r.from_value, r.to_value, r.step) == (*spec.bounds, 0.0)  # step 0: continuous
+
+
+@pytest.mark.parametrize(
+    ("changes", "words"),
+    [
+        ({"radius": -0.1}, "Parameter radius out of range"),  # rclpy's words, for what the range says
+        ({"gate": float("nan")}, "Parameter gate out of range"),
+        ({"normals_markers_stride": 0}, "Parameter normals_markers_stride out of range"),
+        ({"radius": 0.0}, "radius must be a finite number > 0 (metres), got 0.0"),  # the rule's, for what it cannot
+        ({"normals_markers_length": 0.0}, "normals_markers_length must be a finite number > 0 (metres), got 0.0"),
+        ({"k": 1}, "k must be an integer >= 3, got 1 (0 means the method's default)"),
+    ],
+)
+def test_a_range_refuses_in_rclpys_words_and_the_rule_says_what_a_range_cannot(
+    node: TripletNormalNode, changes: dict, words: str
+) -> None:
+    result = node.set_parameters_atomically([Parameter(k, value=v) for k, v in changes.items()])
+    assert not result.successful and words in result.reason, result.reason
+
+
+def test_the_presets_and_the_shipped_params_file_lie_inside_the_ranges(context: Context) -> None:
+    """rclpy checks a start-up value against the range as it declares it: every preset's values are declared."""
+    import yaml
+    from conftest import REPO
+
+    for name in ("params", "depth_camera", "lidar"):
+        values = yaml.safe_load((REPO / "config" / f"{name}.yaml").read_text())["/**"]["ros__parameters"]
+        n = make_node(context, **{**values, "method": "pca"})
+        try:
+            assert all(n.get_parameter(k).value == v for k, v in values.items() if k != "method"), name
+        finally:
+            assert n.stop()
+            n.destroy_node()
 
 
 def test_k_is_declared_with_both_meanings_and_zero_as_the_method_default(node: TripletNormalNode) -> None:

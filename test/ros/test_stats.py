@@ -85,3 +85,16 @@ def test_a_closed_window_is_a_snapshot() -> None:
     window = stats.window(1.0, 0)
     stats.record(2.0)
     assert window.total.processed == 1 and window.window.processed == 1
+
+
+def test_clouds_a_transition_dropped_count_as_dropped_in_the_window_and_the_totals() -> None:
+    stats = ProcessingStats()
+    stats.arrive()
+    stats.start()
+    stats.drop()  # the cloud in flight, its answer no longer sendable
+    window = stats.window(5.0, dropped_total=2)  # and two the mailbox replaced
+    assert (window.dropped, window.dropped_total, window.window.stopped, window.in_flight_s) == (3, 3, 1, None)
+    stats.drop()  # the waiting cloud, discarded by a deactivate
+    window = stats.window(5.0, dropped_total=2)
+    assert (window.dropped, window.dropped_total, window.total.stopped) == (1, 4, 2)
+    assert window.line().endswith("total: 1 arrived, 0 clouds, 4 dropped, 0 rejected")

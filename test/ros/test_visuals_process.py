@@ -24,7 +24,7 @@ from sensor_msgs.msg import Image, PointCloud2
 from visualization_msgs.msg import Marker, MarkerArray
 
 from triplet_normal_ros.evaluation.normal_map import normals_to_rgb
-from triplet_normal_ros.evaluation.visuals import MAX_SEGMENTS, length_reason, stride_reason
+from triplet_normal_ros.evaluation.visuals import MAX_SEGMENTS, length_reason
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, make_cloud, read_field, read_xyz
 from triplet_normal_ros.ros.replay import Frame, load_frame
 
@@ -239,8 +239,9 @@ def test_an_unorganized_cloud_gets_segments_and_no_image(
 def test_switches_stride_and_length_change_at_runtime_without_a_reload(
     node: NodeProcess, client: ProbeClient, status: StatusListener, frame: Frame
 ) -> None:
-    assert client.set_parameters({"normals_markers_stride": 0}) == (False, stride_reason(0))
-    assert client.set_parameters({"normals_markers_length": -1.0}) == (False, length_reason(-1.0))
+    ok, why = client.set_parameters({"normals_markers_stride": 0})  # below the descriptor's range: rclpy's words
+    assert not ok and why.startswith("Parameter normals_markers_stride out of range"), why
+    assert client.set_parameters({"normals_markers_length": 0.0}) == (False, length_reason(0.0))  # the range holds 0
     ok, why = client.set_parameters(
         {"normals_markers_stride": 5, "normals_markers_length": 0.01, "normal_image": False}
     )

@@ -5,8 +5,8 @@ and `run`. Heavy modules (torch, training data, matplotlib) are imported inside 
 and `estimate` works without the training extras. Every expected failure prints one line
 `triplet-normal: error: ...` on stderr: exit 2 for bad arguments, 1 for a bad file, checkpoint or device, or a
 missing optional module. A command imports the optional modules its options need (`needed_modules`) before any work,
-so a missing one is that line, naming the module and the pip extra that installs it, rather than a traceback after
-minutes of work.
+so a missing one is that line, naming the module and the pip command that installs it, rather than a traceback
+after minutes of work.
 """
 
 import argparse
@@ -19,7 +19,6 @@ from ..errors import TripletNormalError, UsageError
 from . import ablate, bag, bags, bench, estimate, evaluate, train
 
 PROG = "triplet-normal"
-PACKAGE = __package__.partition(".")[0]
 #: (name, module, help); train and ablate add their options only when they are the command (they import torch).
 COMMANDS = (
     ("estimate", estimate, "normals for one cloud file"),
@@ -31,16 +30,18 @@ COMMANDS = (
     ("bench", bench, "points/s per stage on a synthetic 100k-point cloud"),
 )
 _HEAVY = ("train", "ablate")
-#: Optional modules, by the extra of setup.py's extras_require that installs them.
-EXTRAS = {
-    "ray": "cluster",
-    "rosbags": "io",
-    "pypcd4": "io",
-    "yaml": "io",
-    "trimesh": "train",
-    "manifold3d": "train",
-    "rtree": "train",
-    "matplotlib": "train",
+#: Optional modules, by the PyPI distribution that installs them (`pip install <it>`): a step that works on a native
+#: ROS 2 install too, where rosdep has no key for ray and pypcd4 and this package itself is not on PyPI. setup.py's
+#: extras_require groups them for an install from a checkout.
+DISTRIBUTIONS = {
+    "ray": "ray",
+    "rosbags": "rosbags",
+    "pypcd4": "pypcd4",
+    "yaml": "pyyaml",
+    "trimesh": "trimesh",
+    "manifold3d": "manifold3d",
+    "rtree": "rtree",
+    "matplotlib": "matplotlib",
 }
 #: Modules that come with ROS 2 rather than from pip: `bag` and `bags` use its message packages.
 ROS_MODULES = ("builtin_interfaces", "std_msgs", "sensor_msgs")
@@ -98,7 +99,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def needed_modules(args: argparse.Namespace) -> list[str]:
-    """The optional modules the command will import with these options (`EXTRAS`, `ROS_MODULES`)."""
+    """The optional modules the command will import with these options (`DISTRIBUTIONS`, `ROS_MODULES`)."""
     cluster = ["ray"] if getattr(args, "workers", None) is not None or getattr(args, "address", None) else []
     params = ["yaml"] if getattr(args, "params_file", None) else []
     if args.command == "estimate":
@@ -125,9 +126,8 @@ def missing_module(error: ImportError, command: str) -> str | None:
     """The one line for an optional module that cannot be imported, naming how to install it; None for others."""
     name = error.name or next(iter(re.findall(r"No module named '([^']+)'", str(error))), "")
     top = name.partition(".")[0]
-    if top in EXTRAS:
-        extra = f"{PACKAGE}[{EXTRAS[top]}]"
-        return f"{command} needs the Python module '{top}', which is not installed: pip install '{extra}'"
+    if top in DISTRIBUTIONS:
+        return f"{command} needs the Python module '{top}', which is not installed: pip install {DISTRIBUTIONS[top]}"
     if top in ROS_MODULES:
         return f"{command} needs the ROS 2 message package '{top}', which is not installed: source a ROS 2 setup.bash"
     return None

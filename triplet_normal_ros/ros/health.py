@@ -78,8 +78,9 @@ def problems(window: Window) -> list[tuple[int, str]]:
         found.append((ERROR, f"the last {window.rejected_in_a_row} clouds were all rejected"))
     elif w.rejected:
         found.append((WARN, f"{w.rejected} rejected in the last {period}"))
-    if window.dropped:
-        found.append((WARN, f"{window.dropped} dropped in the last {period}: input faster than processing"))
+    outrun = window.dropped - w.stopped  # a transition's drops are the operator's doing, no fault
+    if outrun:
+        found.append((WARN, f"{outrun} dropped in the last {period}: input faster than processing"))
     return found
 
 
@@ -114,6 +115,7 @@ def stat_values(window: Window) -> KeyValues:
         ("total arrived", str(t.arrived)),
         ("total processed", str(t.processed)),
         ("total dropped", str(window.dropped_total)),
+        ("total dropped by deactivate or cleanup", str(t.stopped)),
         ("total rejected", str(t.rejected)),
     )
 

@@ -44,6 +44,14 @@ class Mailbox(Generic[T]):
             item, self._item, self._full = self._item, None, False
             return item
 
+    def discard(self) -> bool:
+        """Empty the slot without handing the item to anyone; True when one was waiting. Not counted in `dropped`
+        (replacements only): whoever discards counts it (the managed node, as dropped by its transition)."""
+        with self._cond:
+            waiting = self._full
+            self._item, self._full = None, False
+            return waiting
+
     def close(self) -> None:
         """Wake every waiting ``get`` with None and refuse further items; the waiting item is discarded."""
         with self._cond:

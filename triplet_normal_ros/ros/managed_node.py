@@ -3,7 +3,8 @@ lifecycle, for stacks that bring their nodes up through a lifecycle manager (nav
 
     configure   declare and validate the parameters, load the checkpoint, measure the expected throughput
     activate    subscribe to ``input``; ``output`` and ``/diagnostics`` publish; statistics every stats_period
-    deactivate  unsubscribe and drop the waiting cloud; the estimator stays loaded
+    deactivate  unsubscribe and drop the waiting cloud (counted as dropped, reported at once); the estimator stays
+                loaded; an estimate in flight finishes unsent and counts as dropped
     cleanup     drop the estimator (the model is freed once no estimate uses it)
     shutdown    stop serving: the process exits 0
 
@@ -76,14 +77,17 @@ class ManagedNode(ServingMixin, LifecycleNode):
         return result
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Stop answering: unsubscribe, stop the statistics and drop the cloud waiting in the mailbox. An estimate in
-        flight finishes, but its answer goes to a publisher that no longer sends."""
+        """Stop answering: unsubscribe, stop the statistics, drop the cloud waiting in the mailbox and report the
+        window with it (log and /diagnostics, while those still publish). An estimate in flight finishes, but its
+        answer is not sent: the worker counts it as dropped too, in the next report."""
         self._stop_answering()
-        self._mailbox.get(timeout=0)
+        self._discard_waiting()
+        self._report_stats()
         self.get_logger().info("inactive: not subscribed; the estimator stays loaded")
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._discard_waiting()
         self._active = None
         self.get_logger().info("unconfigured: the estimator is released")
         return TransitionCallbackReturn.SUCCESS
@@ -101,7 +105,7 @@ class ManagedNode(ServingMixin, LifecycleNode):
         with nothing subscribed or sending and the estimator released, so that configure can start afresh."""
         self._stop_answering()
         super().on_deactivate(state)
-        self._mailbox.get(timeout=0)
+        self._discard_waiting()
         self._active = None
         self.get_logger().error(f"a transition from {state.label} failed; unconfigured, the estimator is released")
         return TransitionCallbackReturn.SUCCESS
@@ -110,6 +114,11 @@ class ManagedNode(ServingMixin, LifecycleNode):
         """Log why `transition` failed, in one line; FAILURE, which takes the node back to the state it came from."""
         self.get_logger().error(f"{transition} failed: {describe_error(error)}")
         return TransitionCallbackReturn.FAILURE
+
+    def _discard_waiting(self) -> None:
+        """Drop the cloud waiting in the mailbox, if any, and count it: a transition's drop is a drop all the same."""
+        if self._mailbox.discard():
+            self._stats.drop()
 
     def _stop_answering(self) -> None:
         """Unsubscribe, stop the statistics timer and the RViz outputs' drawing thread (deactivate, shutdown, a failed

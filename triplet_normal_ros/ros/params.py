@@ -1,17 +1,20 @@
 """The node's parameters as plain data plus their validation, so both are testable without rclpy.
 
-The node turns each :class:`ParamSpec` into a ``ParameterDescriptor`` (type, constraints, description) and calls
-:func:`validate` from its on-set callback; the reason string goes back to whoever tried to set the parameter. A
-parameter that is an estimator setting is judged by that setting's one rule (`core.settings.reason`), the same rule
-`triplet-normal estimate`, `bag` and `bags` and the estimator itself apply, so the descriptors carry no ranges of
-their own: rclpy would check a range first and answer in its own words. The viewpoint's rule is the message step's
-(`pipeline.messages.viewpoint_reason`), which `bag` shares; the RViz outputs' rules are beside the code that draws
-them (`evaluation.visuals`); the rest are the node's alone.
+The node turns each :class:`ParamSpec` into a ``ParameterDescriptor`` (type, constraints, description, and the
+inclusive range of a bounded number, which `ros2 param describe` shows and rqt_reconfigure draws as a slider) and
+calls :func:`validate` from its on-set callback; the reason string goes back to whoever tried to set the parameter.
+rclpy checks a range first, in its own words ("out of range"); what a range cannot say (radius > 0 but not 0, k 0 or
+at least 3, a finite number) is said by the parameter's rule. A parameter that is an estimator setting is judged by
+that setting's one rule (`core.settings.reason`), the same rule `triplet-normal estimate`, `bag` and `bags` and the
+estimator itself apply; each range holds every value its rule accepts, so the range never refuses what the rule
+would take. The viewpoint's rule is the message step's (`pipeline.messages.viewpoint_reason`), which `bag` shares; the
+RViz outputs' rules are beside the code that draws them (`evaluation.visuals`); the rest are the node's alone.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
@@ -39,6 +42,13 @@ NODE_RULES = {
 }
 #: Any value no rule accepts: asking a rule about it yields the words of what it does accept.
 _NOTHING = object()
+#: The largest values a ROS parameter can hold (int64, a finite double): the top of a range bounded only below.
+INT_MAX = 2**63 - 1
+FLOAT_MAX = sys.float_info.max
+#: Ranges bounded below only: a number >= 0 (or > 0, which its rule says), an integer >= 0 or >= 1.
+NON_NEGATIVE = (0.0, FLOAT_MAX)
+NON_NEGATIVE_INT = (0, INT_MAX)
+POSITIVE_INT = (1, INT_MAX)
 
 
 def accepted(name: str) -> str:
@@ -50,7 +60,8 @@ def accepted(name: str) -> str:
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One declared parameter: ``kind`` is the Python type rclpy infers, ``bounds`` an inclusive (lo, hi) range."""
+    """One declared parameter: ``kind`` is the Python type rclpy infers, ``bounds`` an inclusive (lo, hi) range
+    (the descriptor's FloatingPointRange, step 0: any value, or IntegerRange, step 1)."""
 
     name: str
     kind: type
@@ -93,17 +104,19 @@ SPECS: tuple[ParamSpec, ...] = (
         int,
         defaults.BATCH_SIZE,
         "Patches per forward pass of the learned method.",
-        None,
+        POSITIVE_INT,
         accepted("batch_size"),
     ),
-    ParamSpec("radius", float, defaults.RADIUS, "Neighbourhood ball radius in metres.", None, accepted("radius")),
+    ParamSpec(
+        "radius", float, defaults.RADIUS, "Neighbourhood ball radius in metres.", NON_NEGATIVE, accepted("radius")
+    ),
     ParamSpec(
         "k",
         int,
         K_METHOD_DEFAULT,
         "learned: points per patch; pca: most neighbours per point (the nearest k inside the radius). "
         f"{K_METHOD_DEFAULT} means the method's default: the checkpoint's k for learned, {PCA_DEFAULT_K} for pca.",
-        None,
+        NON_NEGATIVE_INT,
         f"{K_METHOD_DEFAULT} (the method's default) or {accepted('k')}",
     ),
     ParamSpec(
@@ -112,7 +125,7 @@ SPECS: tuple[ParamSpec, ...] = (
         defaults.GATE,
         "hybrid: the network answers where a quadric explains the neighbourhood better than PCA's plane by more than "
         "this F statistic (about 1 on any flat surface); lower sends more points to the network.",
-        None,
+        NON_NEGATIVE,
         accepted("gate"),
     ),
     ParamSpec(
@@ -122,7 +135,7 @@ SPECS: tuple[ParamSpec, ...] = (
         "hybrid: ... and where that quadric departs from the plane by more than this RMS height, as a fraction of "
         "the ball's radius ('radius', grown by 'range_scale'; mild sensor waviness stays with PCA); 0 leaves the "
         "choice to 'gate' alone.",
-        None,
+        NON_NEGATIVE,
         accepted("bend"),
     ),
     ParamSpec(
@@ -144,7 +157,7 @@ SPECS: tuple[ParamSpec, ...] = (
         "The ball grows with range: a point's radius is max(radius, range_scale x its distance from the sensor); 0 "
         "keeps it fixed (depth cameras). A spinning LiDAR's rings part with range, and a fixed ball holds one ring "
         f"(a line: no normal) beyond a few metres; config/lidar.yaml sets {defaults.LIDAR['range_scale']:g}.",
-        None,
+        (0.0, 1.0),
         accepted("range_scale"),
     ),
     ParamSpec(
@@ -185,7 +198,7 @@ SPECS: tuple[ParamSpec, ...] = (
         defaults.NORMALS_MARKERS_STRIDE,
         f"Every n-th point with a normal gets a segment (raised where that would give more than {MAX_SEGMENTS:,}); "
         "a prime keeps an organized cloud's picks from lining up in columns.",
-        None,
+        POSITIVE_INT,
         accepted("normals_markers_stride"),
     ),
     ParamSpec(
@@ -193,7 +206,7 @@ SPECS: tuple[ParamSpec, ...] = (
         float,
         defaults.NORMALS_MARKERS_LENGTH,
         "Length of each normal segment in metres.",
-        None,
+        NON_NEGATIVE,
         accepted("normals_markers_length"),
     ),
     ParamSpec(
@@ -306,7 +319,8 @@ def validate(name: str, value: Any) -> str | None:
             value = list(value)
         except TypeError:
             return f"{name} must be a list, got {value!r}"
-    return _check_type(spec, value) or _check_bounds(spec, value) or _check_value(name, value)
+    # the rule first: its words say more than the range's, and every range holds all its rule accepts
+    return _check_type(spec, value) or _check_value(name, value) or _check_bounds(spec, value)
 
 
 def validate_all(values: Mapping[str, Any]) -> str | None:

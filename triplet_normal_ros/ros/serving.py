@@ -127,6 +127,7 @@ class ServingMixin:
         self._grid_noted = False  # a grid that is not a range image is reported once (`Plan.note`)
         self._publisher: Publisher | None = None
         self._subscription = None
+        self._input_topic = ""
         self._diagnostics: Publisher | None = None
         self._visuals: NormalVisuals | None = None
         self._stats_timer = None
@@ -261,6 +262,7 @@ class ServingMixin:
             qos_overriding_options=QoSOverridingOptions.with_default_policies(),
             callback_group=MutuallyExclusiveCallbackGroup(),
         )
+        self._input_topic = self._subscription.topic_name  # kept for the report a deactivate makes after unsubscribing
 
     def _start_stats(self) -> None:
         """The statistics timer, every `stats_period` seconds of the node's clock."""
@@ -313,14 +315,20 @@ class ServingMixin:
 
     def _process(self, msg: PointCloud2) -> None:
         """Answer one cloud with the snapshot in force when it is taken (`answer_message`), publish, time it. A
-        managed node cleaned up since the cloud arrived has no snapshot: the cloud is dropped."""
+        managed node cleaned up since the cloud arrived has no snapshot, and one deactivated while it estimated can
+        no longer send: either way the cloud is counted as dropped."""
         active, publisher = self._active, self._publisher
         if active is None or publisher is None:
+            self._stats.drop()
             return
         self._stats.start()
         start = time.perf_counter()
         estimator, settings = active
         answer = answer_message(msg, estimator, settings.message_settings(), self._cancel)
+        if not getattr(publisher, "is_activated", True):  # a lifecycle publisher, deactivated meanwhile
+            self._stats.drop()
+            self.get_logger().info("dropped the answer to the cloud in flight: the node was deactivated")
+            return
         if answer.points and not answer.finite:
             self.get_logger().warning(
                 "cloud has no finite points; publishing NaN normals", throttle_duration_sec=THROTTLE_S
@@ -347,7 +355,7 @@ class ServingMixin:
         window = self._stats.window(settings.stats_period, self._mailbox.dropped)
         self.get_logger().info(window.line())
         device = str(estimator.device)
-        topics = (self._subscription.topic_name, self._publisher.topic_name)
+        topics = (self._input_topic, self._publisher.topic_name)
         health = assess(window, settings_values(settings, device, _k(estimator, settings), topics))
         stamp = self.get_clock().now().to_msg()
         rviz = self._visuals.status(settings.visual_settings())  # the RViz outputs' own status, while one is on

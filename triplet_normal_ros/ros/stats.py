@@ -25,6 +25,7 @@ class Counts:
     max_ms: float = 0.0
     rejected: int = 0
     arrived: int = 0
+    stopped: int = 0  # dropped by a managed node's transition (deactivate, cleanup): taken or waiting, never answered
 
     @property
     def mean_ms(self) -> float | None:
@@ -40,7 +41,7 @@ class Window:
     elapsed_s: float  # measured since the previous report (what the rates divide by: timers run late under load)
     window: Counts
     total: Counts
-    dropped: int
+    dropped: int  # replaced in the mailbox, and `window.stopped`
     dropped_total: int
     in_flight_s: float | None = None  # seconds the worker has spent on its current cloud, None when idle
     rejected_in_a_row: int = 0  # rejections since the last cloud that was processed
@@ -115,13 +116,22 @@ class ProcessingStats:
             self._window.rejected += 1
             self._total.rejected += 1
 
+    def drop(self) -> None:
+        """One cloud a transition stopped (a managed node's deactivate or cleanup): the one waiting, or the one in
+        flight whose answer can no longer be sent. Counted as dropped, apart from the input outrunning the node."""
+        with self._lock:
+            self._in_flight_since = None
+            self._window.stopped += 1
+            self._total.stopped += 1
+
     @property
     def processed(self) -> int:
         with self._lock:
             return self._total.processed
 
     def window(self, period_s: float, dropped_total: int) -> Window:
-        """Close the window since the last report and start a new one; ``dropped_total`` is the mailbox's count."""
+        """Close the window since the last report and start a new one; ``dropped_total`` is the mailbox's count, to
+        which the clouds a transition dropped are added."""
         with self._lock:
             now = self._clock()
             closed = Window(
@@ -129,8 +139,8 @@ class ProcessingStats:
                 elapsed_s=now - self._window_start,
                 window=self._window,
                 total=replace(self._total),
-                dropped=dropped_total - self._dropped_at_report,
-                dropped_total=dropped_total,
+                dropped=dropped_total - self._dropped_at_report + self._window.stopped,
+                dropped_total=dropped_total + self._total.stopped,
                 in_flight_s=None if self._in_flight_since is None else now - self._in_flight_since,
                 rejected_in_a_row=self._rejected_in_a_row,
                 last_rejection=self._last_rejection,
