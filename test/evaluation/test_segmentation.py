@@ -3,6 +3,8 @@
 import numpy as np
 import pytest
 
+from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.evaluation.segment_eval import EXACT, evaluate_segments
 from triplet_normal_ros.evaluation.segmentation import adjusted_rand_index, recovered_segments, region_segments
 
 
@@ -78,3 +80,11 @@ def test_recovered_segments_need_the_overlap_and_the_size():
 def test_frames_of_other_shapes_are_refused():
     with pytest.raises(ValueError, match="must both be"):
         region_segments(np.zeros((4, 4, 3)), np.zeros((4, 3)))
+
+
+def test_a_study_segments_other_frames_than_eval_when_given_another_seed():
+    """Studies choose on frames eval never scores: the seed must reach the frames."""
+    rows = {"PCA, window": NormalEstimator("pca", radius=0.05, device="cpu")}
+    eval_frames = evaluate_segments(rows, quick=True)[1]["picture"][EXACT]
+    study_frames = evaluate_segments(rows, quick=True, seed=100)[1]["picture"][EXACT]
+    assert eval_frames.shape == study_frames.shape and not np.array_equal(eval_frames, study_frames)

@@ -117,8 +117,11 @@ def _range_rows(checkpoint, device: str, k: int | None, radius: float, shipped) 
     return rows
 
 
-def evaluate_set(kind: str, estimators: dict[str, NormalEstimator], quick: bool) -> tuple[list[MethodScore], dict]:
-    """Score every estimator on one set's frames; returns the scores and a summary of the frames."""
+def evaluate_set(
+    kind: str, estimators: dict[str, NormalEstimator], quick: bool, seed: int = 0
+) -> tuple[list[MethodScore], dict]:
+    """Score every estimator on one set's frames (eval's are seeds 0..n-1; studies pass other seeds, so that a choice
+    is never made on the frames eval scores); returns the scores and a summary of the frames."""
     from tqdm import tqdm
 
     from ..simulation import range_scans
@@ -126,7 +129,7 @@ def evaluate_set(kind: str, estimators: dict[str, NormalEstimator], quick: bool)
     spec = SETS[kind]
     count = QUICK_FRAMES if quick else spec.frames
     make = {"depth": range_scans.depth_frames, "fold": range_scans.fold_frames, "lidar": range_scans.lidar_scans}
-    frames = make[kind](count)
+    frames = make[kind](count, seed)
     per_frame = QUICK_QUERIES if quick else QUERIES
     scores = [MethodScore(name, [], [], method=e.method) for name, e in estimators.items()]
     summary = {"frames": len(frames), "queries": 0, "near_edge": 0}

@@ -65,9 +65,15 @@ def segment_estimators(device: str) -> dict[str, NormalEstimator]:
     return rows
 
 
-def evaluate_segments(estimators: dict[str, NormalEstimator], quick: bool) -> tuple[list[SegmentScore], dict]:
-    """Segment every frame with every method's normals; returns the scores and what the picture needs."""
-    frames = fold_frames(QUICK_FRAMES, width=QUICK_SIZE[0], height=QUICK_SIZE[1]) if quick else fold_frames(FRAMES)
+def evaluate_segments(
+    estimators: dict[str, NormalEstimator], quick: bool, seed: int = 0
+) -> tuple[list[SegmentScore], dict]:
+    """Segment every frame (seeds from `seed`; eval's from 0) with every method's normals; returns the scores and what
+    the picture needs."""
+    if quick:
+        frames = fold_frames(QUICK_FRAMES, seed, width=QUICK_SIZE[0], height=QUICK_SIZE[1])
+    else:
+        frames = fold_frames(FRAMES, seed)
     scores = [SegmentScore(EXACT)] + [SegmentScore(name) for name in estimators]
     picture: dict[str, np.ndarray] = {}
     for frame in tqdm(frames, desc="eval segment", unit="frame", disable=None, file=sys.stderr):
