@@ -67,7 +67,7 @@ demo: venv
 		--build-base $(WS)/build --install-base $(WS)/install --event-handlers console_direct- console_start_end- \
 		|| { echo "make demo: colcon build failed; see $(WS)/log/latest_build" >&2; exit 1; }
 	@echo "make demo: running the installed node on the shipped frames"
-	@$(PY) -m triplet_normal_ros.ros.demo --prefix $(WS)/install/triplet_normal_ros --out out
+	@$(PY) -m triplet_normal_ros.ros.tools.demo --prefix $(WS)/install/triplet_normal_ros --out out
 
 # vermin: the lowest Python the code needs must stay setup.py's python_requires (3.10, Humble's Ubuntu 22.04).
 MIN_PYTHON := 3.10

@@ -22,7 +22,7 @@ from typing import Any
 
 import pytest
 
-from triplet_normal_ros.ros.node_process import params_file, stop_node
+from triplet_normal_ros.ros.tools.node_process import params_file, stop_node
 from triplet_normal_ros.ros.transport import PROFILE_ENVS, choose_profile
 
 REPO = Path(__file__).resolve().parents[1]

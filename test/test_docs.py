@@ -95,7 +95,7 @@ ALLOWED: dict[tuple[str, str], tuple[str, Callable[[], set[float]]]] = {
     ),
     ("0.1", "%"): (
         "the inlier fits' slack, of the radius",
-        lambda: {100 * _constant("core/scales.py", "INLIER_SLACK")},
+        lambda: {100 * _constant("core/learned/scales.py", "INLIER_SLACK")},
     ),
     ("15", "°"): ("the support angle of the paper's normal loss", lambda: {_loss_support_deg()}),
 }
@@ -139,7 +139,7 @@ _COMMAND = re.compile(r"triplet-normal\s+([a-z][a-z-]*)")
 
 
 def package_modules() -> set[str]:
-    """Every module file of the package, as a path below the package (``core/plan.py``), ``__init__.py`` aside."""
+    """Every module file of the package, as a path below the package (``core/tiles.py``), ``__init__.py`` aside."""
     return {p.relative_to(PACKAGE_DIR).as_posix() for p in PACKAGE_DIR.rglob("*.py") if p.name != "__init__.py"}
 
 
@@ -444,14 +444,14 @@ def test_design_api_calls_match_the_signatures() -> None:
 
 
 def test_node_path_table_is_the_plans() -> None:
-    from triplet_normal_ros.core.plan import plan_table
+    from triplet_normal_ros.core.config.plan import plan_table
 
     block = read_section(REPO / "docs" / "NODE.md", "paths")
     assert block is not None and block.strip() == plan_table().strip(), "run docs/tools/path_table.py"
 
 
 def test_node_quotes_the_start_up_line_in_its_current_format() -> None:
-    from triplet_normal_ros.core.plan import Plan
+    from triplet_normal_ros.core.config.plan import Plan
     from triplet_normal_ros.core.throughput import Throughput
 
     line = Throughput(points_per_second=2400.0, network_share=0.07, plan=Plan("hybrid", "window", "kdtree", "range"))
@@ -483,7 +483,8 @@ def test_a_figure_results_does_not_hold_is_reported() -> None:
 
 
 def test_unknown_modules_attributes_and_subcommands_are_reported() -> None:
-    good = "`core/frames.py`, `frames.COLLINEAR_RATIO`, `cli/main.COMMANDS`, triplet_normal_ros.core.plan, `bag.py`, "
+    good = "`core/pca/frames.py`, `frames.COLLINEAR_RATIO`, `cli/main.COMMANDS`, triplet_normal_ros.core.config, "
+    good += "`bag.py`, "
     good += "`NormalEstimator.estimate`"
     assert unknown_names(good + " triplet-normal bags, est.radius, model.safetensors, cloud.xyz") == []
     bad = "`core/nowhere.py`, `frames.NO_SUCH`, `cli/main.NOTHING`, triplet_normal_ros.core.nowhere, "

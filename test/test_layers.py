@@ -223,3 +223,122 @@ def test_everything_below_ros_imports_without_rclpy(tmp_path: Path) -> None:
     assert set(result["imported"]) == expected  # pkgutil found every module the source walk found
     assert not result["rclpy_loaded"]
     assert "rclpy is blocked" in result["ros_node"]  # the control: the block works, so the imports above prove it
+
+
+# Inside core: config/ is pure Python, numba lives in `*_numba` modules alone, and imports sit at the top.
+
+#: The most modules core/ keeps at its top level (its `__init__` included); everything else lives in a subpackage.
+MAX_CORE_TOP_LEVEL = 10
+#: The most imports core/ may make inside functions, each with a comment on its line saying why.
+MAX_DEFERRED_IMPORTS = 2
+COMPILER = "numba"
+
+
+def imported_roots(source: str) -> set[str]:
+    """The top-level names of every library ``source`` imports anywhere (``numba`` for ``from numba import njit``)."""
+    roots = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            roots.update(alias.name.split(".")[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            roots.add(node.module.split(".")[0])
+    return roots
+
+
+def deferred_imports(source: str) -> list[tuple[int, str]]:
+    """(line number, line) of every import inside a function of ``source``."""
+    lines = source.splitlines()
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+            for inner in ast.walk(node):
+                if isinstance(inner, ast.Import | ast.ImportFrom):
+                    found.append((inner.lineno, lines[inner.lineno - 1]))
+    return found
+
+
+def compiler_importers(sources: dict[str, str]) -> list[str]:
+    """The modules of ``sources`` (dotted name -> source) that import numba without being a `*_numba` module."""
+    return sorted(m for m, src in sources.items() if COMPILER in imported_roots(src) and not m.endswith("_numba"))
+
+
+def _core_sources() -> dict[str, str]:
+    return {m: p.read_text() for m, p in MODULES.items() if part(m) == "core"}
+
+
+def test_core_keeps_few_modules_at_its_top_level() -> None:
+    top = sorted(p.name for p in (PACKAGE_DIR / "core").glob("*.py"))
+    assert len(top) <= MAX_CORE_TOP_LEVEL, top
+
+
+def test_only_numba_modules_import_numba() -> None:
+    sources = {m: p.read_text() for m, p in MODULES.items()}
+    assert compiler_importers(sources) == []
+    assert any(m.endswith("_numba") for m in sources)  # the rule is not vacuous
+
+
+def test_core_imports_at_the_top_of_its_modules() -> None:
+    """Imports inside functions hide what a module needs; the few that start-up needs say why on their line."""
+    found = [
+        f"{m}:{line}: {text.strip()}" for m, src in _core_sources().items() for line, text in deferred_imports(src)
+    ]
+    assert len(found) <= MAX_DEFERRED_IMPORTS, found
+    assert all("#" in text for text in found), found
+
+
+def test_config_imports_neither_torch_nor_numba_at_its_top() -> None:
+    """Statically: no module of core/config imports numba anywhere, nor torch when it is imported (only inside a
+    function, when a device name must be checked against the machine)."""
+    config = {m: src for m, src in _core_sources().items() if m.startswith(f"{ROOT}.core.config")}
+    assert config
+    for module, source in config.items():
+        assert COMPILER not in imported_roots(source), module
+        assert "torch" not in imported_roots(module_level(source)), module
+
+
+def module_level(source: str) -> str:
+    """``source`` without its function bodies and its ``if TYPE_CHECKING:`` blocks: what importing it runs."""
+    keep = [n for n in ast.parse(source).body if not (isinstance(n, ast.FunctionDef) or _is_type_checking(n))]
+    return ast.unparse(ast.Module(body=keep, type_ignores=[]))
+
+
+def _is_type_checking(node: ast.stmt) -> bool:
+    return isinstance(node, ast.If) and isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING"
+
+
+def test_the_core_checks_catch_what_they_are_for() -> None:
+    sources = {
+        f"{ROOT}.core.pca.eigen_numba": "from numba import njit\n",
+        f"{ROOT}.core.pca.eigen": "import numba\n",
+        f"{ROOT}.core.search.pools": "def f():\n    from numba import njit\n",
+    }
+    assert compiler_importers(sources) == [f"{ROOT}.core.pca.eigen", f"{ROOT}.core.search.pools"]
+    assert deferred_imports("import os\ndef f():\n    import torch  # why\n") == [(3, "    import torch  # why")]
+    lazy = "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import torch\ndef f():\n    import torch\n"
+    assert "torch" not in imported_roots(module_level(lazy))
+    assert "torch" in imported_roots(module_level("import torch\n"))
+
+
+#: Runs in a fresh interpreter: imports the named modules, then says which heavy libraries they loaded.
+_LOADED = """
+import importlib, json, sys
+for name in sys.argv[1:]:
+    importlib.import_module(name)
+print(json.dumps({lib: lib in sys.modules for lib in ("torch", "numba")}))
+"""
+
+
+def _loaded(*modules: str) -> dict[str, bool]:
+    done = subprocess.run([sys.executable, "-c", _LOADED, *modules], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_importing_config_loads_neither_torch_nor_numba() -> None:
+    config = [m for m in MODULES if m.startswith(f"{ROOT}.core.config")]
+    assert config and _loaded(*config) == {"torch": False, "numba": False}
+
+
+def test_importing_ros_params_loads_no_compiler() -> None:
+    """The node's parameter rules (and the CLI's) read config/ and the message settings, not the estimator's kernels."""
+    assert _loaded(f"{ROOT}.ros.params")["numba"] is False

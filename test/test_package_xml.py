@@ -53,4 +53,4 @@ def test_every_ros_package_the_code_imports_is_declared() -> None:
     ros = {m for m in imported if m in ROS_MODULES or m.endswith(("_msgs", "_interfaces"))}
     assert ros >= {"rclpy", "sensor_msgs", "std_msgs"}  # the scan finds the node's own imports
     assert ros <= set(declared_keys()), f"declare in package.xml: {sorted(ros - set(declared_keys()))}"
-    assert "safetensors" not in imported  # checkpoints are read by core/tensorfile.py: no key needed
+    assert "safetensors" not in imported  # checkpoints are read by core/learned/tensorfile.py: no key needed

@@ -16,7 +16,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from triplet_normal_ros.core.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
+from triplet_normal_ros.core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.evaluation.evaluate import query_indices, validation_clouds
 from triplet_normal_ros.evaluation.metrics import angles_rad

@@ -8,9 +8,9 @@ Run: .venv/bin/python docs/tools/degenerate_study.py   (about 3 minutes on 2 qui
 
 import numpy as np
 
-from triplet_normal_ros.core import frames
-from triplet_normal_ros.core.conventions import DEPTH_RADIUS, LIDAR_RADIUS
+from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS, LIDAR_RADIUS
 from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.pca import frames
 from triplet_normal_ros.evaluation.metrics import angles_rad
 from triplet_normal_ros.simulation.range_scans import depth_frames, lidar_scans
 

@@ -20,10 +20,10 @@ import argparse
 
 import numpy as np
 
-from triplet_normal_ros.core import hybrid
-from triplet_normal_ros.core.conventions import DEPTH_RADIUS
+from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.hybrid import PART_SPAN, window_z
+from triplet_normal_ros.core.paths import range_image as hybrid
+from triplet_normal_ros.core.range_image.survey import PART_SPAN, window_z
 from triplet_normal_ros.evaluation.metrics import angles_rad
 from triplet_normal_ros.simulation.range_scans import fold_frames
 

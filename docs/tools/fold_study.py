@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from triplet_normal_ros.core.conventions import DEPTH_RADIUS
+from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.evaluation.metrics import angles_rad
 from triplet_normal_ros.simulation.range_scans import depth_frames, fold_frames

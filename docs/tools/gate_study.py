@@ -16,13 +16,13 @@ Run: .venv/bin/python docs/tools/gate_study.py   (about 10 minutes on 2 CPU core
 import numpy as np
 import torch
 
-from triplet_normal_ros.core.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
+from triplet_normal_ros.core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.frames import masked_covariance, principal_frames, quadric_gain
-from triplet_normal_ros.core.neighbours import NeighbourIndex
+from triplet_normal_ros.core.pca.frames import masked_covariance, principal_frames, quadric_gain
+from triplet_normal_ros.core.search.neighbours import NeighbourIndex
 from triplet_normal_ros.evaluation.evaluate import query_indices, validation_clouds
 from triplet_normal_ros.evaluation.metrics import angles_rad
-from triplet_normal_ros.ros.replay import FRAMES, load_frame
+from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
 from triplet_normal_ros.simulation.range_scans import depth_frames, lidar_scans
 
 F_GATE = 10.0

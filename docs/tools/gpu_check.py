@@ -164,8 +164,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_node(args: argparse.Namespace) -> int:
     from triplet_normal_ros.core.estimator import NormalEstimator
     from triplet_normal_ros.io.pointcloud2 import read_field
-    from triplet_normal_ros.ros.node_process import node_env, params_file, start_node, stop_node, wait_for_node
-    from triplet_normal_ros.ros.replay import RELIABLE_INPUT, ReplayClient, load_frame
+    from triplet_normal_ros.ros.tools.node_process import node_env, params_file, start_node, stop_node, wait_for_node
+    from triplet_normal_ros.ros.tools.replay import RELIABLE_INPUT, ReplayClient, load_frame
 
     what = f"node, {args.method}, full real frame"
     prefix, out = args.prefix.resolve(), args.out.resolve()

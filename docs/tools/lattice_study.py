@@ -1,7 +1,7 @@
-"""The network on a lattice (`core/lattice.py`) and the window gate: hybrid's accuracy, network passes and time with
-the network on every gated pixel (stride 1), on a lattice at several agreement angles, with or without the coarser
-lattice level, and with the gate reading the first windows alone or the slope-fitted ones too, on frames eval never
-scores.
+"""The network on a lattice (`core/range_image/lattice.py`) and the window gate: hybrid's accuracy, network passes and
+time with the network on every gated pixel (stride 1), on a lattice at several agreement angles, with or without the
+coarser lattice level, and with the gate reading the first windows alone or the slope-fitted ones too, on frames eval
+never scores.
 
 Frames: the six close-range fold scenes of `simulation.fold_scenes` and three room frames of `depth_frames` of each
 seed in `--seeds` (default 100; eval scores seed 0). Each estimate is the whole frame, as the node runs it; MSAE
@@ -27,11 +27,12 @@ from functools import partial
 
 import numpy as np
 
-from triplet_normal_ros.core import hybrid, lattice
-from triplet_normal_ros.core.conventions import DEPTH_RADIUS
+from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS
 from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.paths import range_image as hybrid
+from triplet_normal_ros.core.range_image import lattice, survey
 from triplet_normal_ros.evaluation.metrics import angles_rad
-from triplet_normal_ros.ros.replay import FRAMES, load_frame
+from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
 from triplet_normal_ros.simulation.range_scans import depth_frames, fold_frames
 
 SEED = 100
@@ -106,7 +107,7 @@ def main() -> None:
         hybrid.survey_and_cue = partial(_shut_cue, first_cue) if windows == "fitted" else first_cue
         for z in _floats(args.z) if args.z else [None]:
             if z is not None:
-                hybrid.window_z = lambda _gate, z=z: z
+                survey.window_z = lambda _gate, z=z: z
             which = "first and fitted" if windows == "both" else windows
             print(f"\nthe gate reads the {which} windows" + ("" if z is None else f", z > {z:g}"))
             report(args)
@@ -122,7 +123,7 @@ def _first_windows_gate(fitted_gate, image, fit, survey, cue):
 def _shut_cue(first_cue, image, fit):
     """`hybrid.survey_and_cue` with a cue that never opens the gate: the gate reads the fitted windows alone."""
     normal, cue = first_cue(image, fit)
-    return normal, hybrid.Structure(cue.z * 0, cue.bend * 0)
+    return normal, survey.Structure(cue.z * 0, cue.bend * 0)
 
 
 def report(args: argparse.Namespace) -> None:

@@ -20,10 +20,10 @@ import numpy as np
 import torch
 from torch import nn
 
-from triplet_normal_ros.core.checkpoint import SHIPPED, load_checkpoint
-from triplet_normal_ros.core.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
+from triplet_normal_ros.core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.scales import ScaleFits, cue_count
+from triplet_normal_ros.core.learned.checkpoint import SHIPPED, load_checkpoint
+from triplet_normal_ros.core.learned.scales import ScaleFits, cue_count
 from triplet_normal_ros.evaluation import range_eval
 from triplet_normal_ros.evaluation.bench import torus_cloud
 from triplet_normal_ros.evaluation.evaluate import query_indices, validation_clouds

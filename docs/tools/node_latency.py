@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.ros.node_process import node_env, params_file, start_node, stop_node, wait_for_node
 from triplet_normal_ros.ros.params import NodeSettings, apply
-from triplet_normal_ros.ros.replay import SENSOR_INPUT, ReplayClient, load_frame
+from triplet_normal_ros.ros.tools.node_process import node_env, params_file, start_node, stop_node, wait_for_node
+from triplet_normal_ros.ros.tools.replay import SENSOR_INPUT, ReplayClient, load_frame
 
 INPUT, OUTPUT = "/latency/points", "/latency/normals"
 RADIUS = 0.05

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from triplet_normal_ros.core.plan import plan_table
+from triplet_normal_ros.core.config.plan import plan_table
 from triplet_normal_ros.evaluation.report import update_section
 
 NODE_MD = Path(__file__).resolve().parents[1] / "NODE.md"

@@ -13,7 +13,7 @@ import numpy as np
 
 from triplet_normal_ros.core import throughput
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.ros.replay import FRAMES, load_frame
+from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
 
 RADIUS = 0.05
 #: Each estimator: its label in the table -> its NormalEstimator options (radius and device are shared).

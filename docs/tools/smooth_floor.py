@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
-from triplet_normal_ros.core.conventions import RADIUS_FRACTION
+from triplet_normal_ros.core.config.conventions import RADIUS_FRACTION
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.evaluation.evaluate import VAL_POINTS, VAL_SEED, query_indices
 from triplet_normal_ros.evaluation.floor import bayes_normals

@@ -6,7 +6,7 @@ Run from the repository root:
 
 Without --prefix it colcon-builds the checkout into out/soak_ws first. The node runs on a private, localhost-only ROS
 graph; its log goes to out/soak/node.log. The soak itself (the clouds, the checks on every answer, RSS sampling, the
-node's drop counts) is triplet_normal_ros/ros/overload.py, which test/ros/test_soak.py runs for 100 s. --out writes the
+node's drop counts) is ros/tools/overload.py, which test/ros/test_soak.py runs for 100 s. --out writes the
 `soak` block of the results file; the figures are printed either way.
 """
 
@@ -24,8 +24,8 @@ from pathlib import Path
 from tqdm import tqdm
 
 from triplet_normal_ros.evaluation.report import update_section
-from triplet_normal_ros.ros.node_process import node_env, params_file, start_node, stop_node, wait_for_node
-from triplet_normal_ros.ros.overload import (
+from triplet_normal_ros.ros.tools.node_process import node_env, params_file, start_node, stop_node, wait_for_node
+from triplet_normal_ros.ros.tools.overload import (
     FLOOD_DEPTH,
     NODE_PARAMS,
     RSS_EVERY_S,

@@ -19,10 +19,10 @@ import time
 import numpy as np
 import torch
 
-from triplet_normal_ros.core.conventions import RADIUS_FRACTION, bbox_diagonal
-from triplet_normal_ros.core.kernels import CHUNK
-from triplet_normal_ros.core.neighbours import NeighbourIndex
-from triplet_normal_ros.core.voxels import VoxelIndex
+from triplet_normal_ros.core.config.conventions import RADIUS_FRACTION, bbox_diagonal
+from triplet_normal_ros.core.paths.call import CHUNK
+from triplet_normal_ros.core.search.neighbours import NeighbourIndex
+from triplet_normal_ros.core.search.voxels import VoxelIndex
 from triplet_normal_ros.evaluation.bench import torus_cloud
 
 

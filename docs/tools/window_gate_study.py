@@ -18,11 +18,11 @@ import numpy as np
 import torch
 from gate_study import pool_gate  # the pool hybrid's gate, as the first study computes it (same folder)
 
-from triplet_normal_ros.core.conventions import DEPTH_RADIUS, POOL_FACTOR
+from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS, POOL_FACTOR
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.hybrid import ray_noise_normal, structure
-from triplet_normal_ros.core.organized import range_pitch
-from triplet_normal_ros.core.windows import MomentImage
+from triplet_normal_ros.core.range_image.check import range_pitch
+from triplet_normal_ros.core.range_image.image import MomentImage
+from triplet_normal_ros.core.range_image.survey import ray_noise_normal, structure
 from triplet_normal_ros.evaluation.metrics import angles_rad
 from triplet_normal_ros.simulation.depth_camera import depth_frame
 

@@ -51,7 +51,7 @@ from rosbags.interfaces import MessageDefinitionFormat
 
 from triplet_normal_ros.cli import bag as bag_command
 from triplet_normal_ros.cli.main import main
-from triplet_normal_ros.core import defaults
+from triplet_normal_ros.core.config import defaults
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.orientation import orient_towards_viewpoint
 from triplet_normal_ros.io import bag_output

@@ -22,7 +22,7 @@ from helpers import write_points
 from pypcd4 import Encoding, PointCloud
 
 from triplet_normal_ros.cli.main import DISTRIBUTIONS, ROS_MODULES, main
-from triplet_normal_ros.core.conventions import PCA_DEFAULT_K
+from triplet_normal_ros.core.config.conventions import PCA_DEFAULT_K
 from triplet_normal_ros.io.cloud_files import write_normals
 
 SCRIPT = Path(sys.executable).with_name("triplet-normal")

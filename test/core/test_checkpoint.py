@@ -10,15 +10,15 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
-from triplet_normal_ros.core.checkpoint import (
+from triplet_normal_ros.core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, checkpoint_conventions
+from triplet_normal_ros.core.learned.checkpoint import (
     FORMAT,
     CheckpointError,
     load_checkpoint,
     read_metadata,
     save_checkpoint,
 )
-from triplet_normal_ros.core.conventions import POOL_FACTOR, RADIUS_FRACTION, checkpoint_conventions
-from triplet_normal_ros.core.model import TripletNormalNet
+from triplet_normal_ros.core.learned.model import TripletNormalNet
 
 META = {"k": 16, "radius_convention": "absolute", "recipe": "test", "data_seed": 7}
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core import frames
 from triplet_normal_ros.core.cloud import estimate_cloud
 from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.pca import frames
 
 SEARCHES = ("kdtree", "grid", "voxel", "window")
 METHODS = (("pca", None), ("learned", "lite"), ("hybrid", "lite"))

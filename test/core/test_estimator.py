@@ -10,12 +10,12 @@ from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from triplet_normal_ros.core.checkpoint import save_checkpoint
-from triplet_normal_ros.core.conventions import POOL_FACTOR
+from triplet_normal_ros.core.config.conventions import POOL_FACTOR
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.model import TripletNormalNet
-from triplet_normal_ros.core.neighbours import NeighbourIndex
-from triplet_normal_ros.core.patches import build_patches
+from triplet_normal_ros.core.learned.checkpoint import save_checkpoint
+from triplet_normal_ros.core.learned.model import TripletNormalNet
+from triplet_normal_ros.core.learned.patches import build_patches
+from triplet_normal_ros.core.search.neighbours import NeighbourIndex
 from triplet_normal_ros.errors import EstimationCancelled, EstimatorError
 
 _QUATERNIONS = st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(lambda q: np.linalg.norm(q) > 0.2)

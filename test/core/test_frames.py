@@ -6,9 +6,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from triplet_normal_ros.core.frames import masked_covariance, principal_frames, surface_variation
-from triplet_normal_ros.core.neighbours import NeighbourIndex
-from triplet_normal_ros.core.patches import build_patches, to_world
+from triplet_normal_ros.core.learned.patches import build_patches, to_world
+from triplet_normal_ros.core.pca.frames import masked_covariance, principal_frames, surface_variation
+from triplet_normal_ros.core.search.neighbours import NeighbourIndex
 
 # Quaternions from four bounded floats reach the identity, half turns and everything between, and shrink well.
 _QUATERNIONS = st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(lambda q: np.linalg.norm(q) > 0.2)

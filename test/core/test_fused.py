@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from triplet_normal_ros.core.cloud import without_no_returns
-from triplet_normal_ros.core.conventions import (
+from triplet_normal_ros.core.config.conventions import (
     DEPTH_RADIUS,
     HYBRID_BEND,
     HYBRID_GATE,
@@ -20,10 +20,10 @@ from triplet_normal_ros.core.conventions import (
     PCA_DEFAULT_K,
 )
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.fused import CompiledImage
-from triplet_normal_ros.core.hybrid import survey_and_cue, survey_on_slope, window_z
-from triplet_normal_ros.core.organized import range_pitch
-from triplet_normal_ros.core.windows import MomentImage
+from triplet_normal_ros.core.range_image.check import range_pitch
+from triplet_normal_ros.core.range_image.image import MomentImage
+from triplet_normal_ros.core.range_image.image_numba import CompiledImage
+from triplet_normal_ros.core.range_image.survey import survey_and_cue, survey_on_slope, window_z
 from triplet_normal_ros.evaluation.metrics import msae
 from triplet_normal_ros.io.bags import InputBag, decode_cloud
 from triplet_normal_ros.io.pointcloud2 import read_xyz
@@ -190,8 +190,8 @@ BALL_BOUND = {"simulated depth": 2.1, "simulated lidar": 1.05}
 def test_the_compiled_finish_is_the_torch_finish(name: str) -> None:
     """Unit float32 normals and PCL's curvature, NaN at holes and where a window holds no plane, as `kernels.finish`
     of `frames.surface_variation` gives them for the same windows."""
-    from triplet_normal_ros.core.frames import surface_variation
-    from triplet_normal_ros.core.kernels import finish
+    from triplet_normal_ros.core.paths.call import finish
+    from triplet_normal_ros.core.pca.frames import surface_variation
 
     (_, image), (_, fit) = _fits(name)
     normals, curvature = image.finish()
@@ -209,7 +209,7 @@ def test_the_pitch_is_the_angle_between_adjacent_rays() -> None:
     ±0.1 rad, holes and a near wall included): the row pitch is 0.01 everywhere, and each column's is the angle between
     adjacent rays at the median row's elevation, 2·asin(cos(e)·sin(0.0025)) (the lower median of the rows that have
     both rays)."""
-    from triplet_normal_ros.core.organized import _GridRays
+    from triplet_normal_ros.core.range_image.check import _GridRays
 
     elevation = np.linspace(-0.1, 0.1, 21)
     azimuth = np.arange(200) * 0.005
@@ -228,14 +228,14 @@ def test_the_pitch_is_the_angle_between_adjacent_rays() -> None:
 
 @pytest.mark.parametrize("name", sorted(FRAMES))
 def test_the_compiled_pitch_is_the_torch_pitch(name: str) -> None:
-    from triplet_normal_ros.core import fused
-    from triplet_normal_ros.core.organized import _PITCH_SAMPLES, MIN_STEPS, _GridRays, chord_stats, ray_pitch
+    from triplet_normal_ros.core.range_image import check_numba
+    from triplet_normal_ros.core.range_image.check import _PITCH_SAMPLES, MIN_STEPS, _GridRays, chord_stats, ray_pitch
 
     points, shape = FRAMES[name][:2]
     for grid in (points.reshape(*shape, 3), points.reshape(*shape, 3) + np.array([0.0, 0.0, -1.3])):
         for axis in (0, 1):
             reference = chord_stats(torch.from_numpy(grid), axis)
-            compiled = fused.chord_stats(grid, axis, _PITCH_SAMPLES, MIN_STEPS)
+            compiled = check_numba.chord_stats(grid, axis, _PITCH_SAMPLES, MIN_STEPS)
             if reference is None:
                 assert compiled is None
                 continue

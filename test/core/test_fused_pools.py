@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core.conventions import DEPTH_RADIUS, POOL_FACTOR
-from triplet_normal_ros.core.neighbours import NeighbourIndex
-from triplet_normal_ros.core.patches import build_patches
-from triplet_normal_ros.ros.replay import FRAMES, load_frame
+from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS, POOL_FACTOR
+from triplet_normal_ros.core.learned.patches import build_patches
+from triplet_normal_ros.core.search.neighbours import NeighbourIndex
+from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
 from triplet_normal_ros.simulation.depth_camera import depth_frame
 
 K = 64
@@ -70,7 +70,7 @@ def test_a_tiles_point_names_draw_the_whole_clouds_points() -> None:
 
 
 def test_a_given_pca_frame_is_signed_and_used_as_the_torch_code_does() -> None:
-    from triplet_normal_ros.core.kernels import pool_pca
+    from triplet_normal_ros.core.pca.pools import pool_pca
 
     points = depth_frame(4).points.reshape(-1, 3).astype(np.float64)
     cloud, rows, pool = _pools(points, 301, POOL_FACTOR * K)
@@ -82,7 +82,7 @@ def test_a_given_pca_frame_is_signed_and_used_as_the_torch_code_does() -> None:
 
 @pytest.mark.parametrize("size", [30, 500])
 def test_compiled_pool_pca_gives_the_torch_normals(size) -> None:
-    from triplet_normal_ros.core.kernels import pool_normals, pool_normals_torch
+    from triplet_normal_ros.core.pca.pools import pool_normals, pool_normals_torch
 
     points = depth_frame(5).points.reshape(-1, 3).astype(np.float64)
     cloud, rows, pool = _pools(points, 29, size)

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core import fused_pools, fused_scales, scales
-from triplet_normal_ros.core.conventions import DEPTH_RADIUS, POOL_FACTOR
-from triplet_normal_ros.core.neighbours import NeighbourIndex
-from triplet_normal_ros.ros.replay import FRAMES, load_frame
+from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS, POOL_FACTOR
+from triplet_normal_ros.core.learned import patches_numba, scales
+from triplet_normal_ros.core.learned import scales_numba as fused_scales
+from triplet_normal_ros.core.search.neighbours import NeighbourIndex
+from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
 from triplet_normal_ros.simulation.depth_camera import depth_frame
 
 #: The default checkpoint's scales and inlier seeds, and its patch size.
@@ -25,7 +26,7 @@ def _patches(points: np.ndarray, every: int) -> tuple[torch.Tensor, torch.Tensor
     """Pool offsets in radii, the pool mask and the patch frames of every `every`-th finite point."""
     rows = np.flatnonzero(np.isfinite(points).all(axis=1))[::every]
     pool = NeighbourIndex(points).nearest(points[rows], DEPTH_RADIUS, POOL_FACTOR * K)
-    out = fused_pools.build(points, points[rows], pool, DEPTH_RADIUS, K, rows, 0, None)
+    out = patches_numba.build(points, points[rows], pool, DEPTH_RADIUS, K, rows, 0, None)
     return torch.from_numpy(out["local"]), torch.from_numpy(pool >= 0), torch.from_numpy(out["rotation"])
 
 
@@ -113,7 +114,7 @@ def test_equal_distances_at_a_scales_boundary_go_by_pool_column() -> None:
 def test_inference_patches_carry_the_compiled_fits() -> None:
     """`build_patches` at inference on a CPU (hashed draws) hands its pools to the compiled fits with the pool size,
     frames and mask the torch path gives `scales.scale_fits`."""
-    from triplet_normal_ros.core.patches import build_patches
+    from triplet_normal_ros.core.learned.patches import build_patches
 
     points = depth_frame(0).points.reshape(-1, 3).astype(np.float64)
     rows = np.flatnonzero(np.isfinite(points).all(axis=1))[::401]

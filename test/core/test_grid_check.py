@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core import fused
 from triplet_normal_ros.core.cloud import without_no_returns
-from triplet_normal_ros.core.conventions import LIDAR_RADIUS, LIDAR_RANGE_SCALE
+from triplet_normal_ros.core.config.conventions import LIDAR_RADIUS, LIDAR_RANGE_SCALE
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.organized import (
+from triplet_normal_ros.core.range_image import check_numba
+from triplet_normal_ros.core.range_image.check import (
     MAX_BROKEN_STEPS,
     MAX_ORIGIN_SHARE,
     MIN_STEPS,
@@ -155,12 +155,12 @@ def test_the_compiled_grid_check_measures_what_the_torch_one_does(layout: str, o
         cloud[::23] = 0.0  # zeros kept as points
         cloud[1::29] = cloud[::29][: len(cloud[1::29])]  # a point repeated at the next pixel: a zero step
         grid = torch.from_numpy(cloud).view(*shape, 3)
-        rays, at_origin = fused.unit_rays(grid.numpy())
+        rays, at_origin = check_numba.unit_rays(grid.numpy())
         assert at_origin == round(_origin_share(grid) * shape[0] * shape[1]) > 0
         for axis in (0, 1):
             reference = scan_line_breaks(grid, axis)
             lines = _checked_lines(grid, axis).numpy()
-            compiled = fused.scan_line_breaks(rays, axis, lines, SCAN_STEP_SPREAD, SCAN_TURN_COS, MIN_STEPS)
+            compiled = check_numba.scan_line_breaks(rays, axis, lines, SCAN_STEP_SPREAD, SCAN_TURN_COS, MIN_STEPS)
             assert (compiled is None) == (reference is None)
             if reference is not None:
                 assert compiled == pytest.approx(reference, rel=1e-12, abs=1e-15), (axis, compiled, reference)
@@ -175,11 +175,11 @@ def test_the_compiled_scan_line_check_agrees_with_torch_on_steps_too_short_to_ha
     doubled = np.stack(((u - 40) * 2e-3, (v - 30) * 2e-3, np.ones_like(u)), axis=-1)
     doubled[:, 1::2] = doubled[:, 0:-1:2] + 1e-10  # every second pixel a hair from its neighbour
     for grid, expected in ((fine, 0.0), (doubled, None)):
-        rays, _ = fused.unit_rays(grid)
+        rays, _ = check_numba.unit_rays(grid)
         for axis in (0, 1):
             reference = scan_line_breaks(torch.from_numpy(grid), axis)
             lines = _checked_lines(torch.from_numpy(grid), axis).numpy()
-            compiled = fused.scan_line_breaks(rays, axis, lines, SCAN_STEP_SPREAD, SCAN_TURN_COS, MIN_STEPS)
+            compiled = check_numba.scan_line_breaks(rays, axis, lines, SCAN_STEP_SPREAD, SCAN_TURN_COS, MIN_STEPS)
             assert compiled == pytest.approx(reference, rel=1e-12, abs=1e-15), (axis, compiled, reference)
             if expected is not None:
                 assert reference == expected

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core.conventions import POOL_FACTOR
+from triplet_normal_ros.core.config.conventions import POOL_FACTOR
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.frames import masked_covariance, principal_frames, quadric_gain
+from triplet_normal_ros.core.pca.frames import masked_covariance, principal_frames, quadric_gain
 from triplet_normal_ros.errors import EstimatorError
 
 

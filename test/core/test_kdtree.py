@@ -1,4 +1,4 @@
-"""The compiled KD-tree (`core/kdtree.py`) answers exactly what scipy's cKDTree and a brute force answer.
+"""The compiled KD-tree (`core/search/kdtree_numba.py`) answers exactly what scipy's cKDTree and a brute force answer.
 
 Its contract: the nearest k points strictly inside the ball, nearest first, equal distances by id, -1 padded, none for
 a non-finite centre; the same answer in the tree's leaf order (`rows`) as in the caller's; and `tree_normals`, the
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from triplet_normal_ros.core.eigen import EIGEN_GAP
-from triplet_normal_ros.core.fused_pools import pool_normals, tree_normals
-from triplet_normal_ros.core.kdtree import LEAF_SIZE, KDTree, _nearest_one, scratch_for
-from triplet_normal_ros.core.neighbours import NeighbourIndex
+from triplet_normal_ros.core.pca.eigen import EIGEN_GAP
+from triplet_normal_ros.core.pca.pools_numba import pool_normals, tree_normals
+from triplet_normal_ros.core.search.kdtree_numba import LEAF_SIZE, KDTree, _nearest_one, scratch_for
+from triplet_normal_ros.core.search.neighbours import NeighbourIndex
 from triplet_normal_ros.simulation.depth_camera import depth_frame
 
 

@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core import hybrid, lattice
-from triplet_normal_ros.core.conventions import DEPTH_RADIUS
+from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.lattice import agreed, plan_lattice
+from triplet_normal_ros.core.paths import range_image as hybrid
+from triplet_normal_ros.core.range_image import lattice
+from triplet_normal_ros.core.range_image.lattice import agreed, plan_lattice
 from triplet_normal_ros.simulation.range_scans import fold_frames
 
 
@@ -151,7 +152,7 @@ def test_the_coarser_level_cuts_passes_on_a_real_frame_and_keeps_the_finer_level
     it, every pixel of the finer lattice carries the network's own answer; with it, those off the coarser lattice may
     take their coarse neighbours' mean instead, which stays near their own answer (the neighbours agree within
     COARSE_AGREE_DEGREES, and the network's answers change little over a few pixels of one surface)."""
-    from triplet_normal_ros.ros.replay import load_frame
+    from triplet_normal_ros.ros.tools.replay import load_frame
 
     stride, coarse_stride = lattice.STRIDE, lattice.COARSE_STRIDE
     frame = load_frame("table_scene_mug")

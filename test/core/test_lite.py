@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 from helpers import multiply_adds
 
-from triplet_normal_ros.core.checkpoint import (
+from triplet_normal_ros.core.config.conventions import checkpoint_conventions
+from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.learned.checkpoint import (
     SHIPPED,
     load_checkpoint,
     read_metadata,
     resolve_checkpoint,
     shipped_checkpoint_path,
 )
-from triplet_normal_ros.core.conventions import checkpoint_conventions
-from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.training.recipes import RECIPES, Recipe
 
 #: What docs/MODEL.md and docs/RESULTS.md state for the lite network.

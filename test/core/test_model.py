@@ -2,7 +2,7 @@
 
 import torch
 
-from triplet_normal_ros.core.model import PatchEncoder, PointMLP, TripletNormalNet
+from triplet_normal_ros.core.learned.model import PatchEncoder, PointMLP, TripletNormalNet
 
 
 def _randomise_batchnorm(module: torch.nn.Module, seed: int) -> None:

@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.organized import GridIndex, range_pitch
+from triplet_normal_ros.core.range_image.check import range_pitch
+from triplet_normal_ros.core.search.grid import GridIndex
 
 
 def _pinhole_plane(height: int = 120, width: int = 160, f: float = 130.0, sigma: float = 0.0) -> np.ndarray:

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core.neighbours import NeighbourIndex
-from triplet_normal_ros.core.patches import build_patches, sample_columns, to_world
+from triplet_normal_ros.core.learned.patches import build_patches, sample_columns, to_world
+from triplet_normal_ros.core.search.neighbours import NeighbourIndex
 
 
 def _generator(seed: int = 0) -> torch.Generator:

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core import neighbours
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.frames import COLLINEAR_RATIO, surface_variation
-from triplet_normal_ros.core.kernels import pool_normals, pool_pca
-from triplet_normal_ros.core.neighbours import NeighbourIndex
+from triplet_normal_ros.core.pca.frames import COLLINEAR_RATIO, surface_variation
+from triplet_normal_ros.core.pca.pools import pool_normals, pool_pca
+from triplet_normal_ros.core.search import neighbours
+from triplet_normal_ros.core.search.neighbours import NeighbourIndex
 
 
 def _noisy_scene(seed: int = 0) -> np.ndarray:

@@ -8,9 +8,14 @@ import dataclasses
 import numpy as np
 from helpers import multiply_adds
 
-from triplet_normal_ros.core.checkpoint import SHIPPED, read_metadata, resolve_checkpoint, shipped_checkpoint_path
-from triplet_normal_ros.core.conventions import POOL_FACTOR, checkpoint_conventions
+from triplet_normal_ros.core.config.conventions import POOL_FACTOR, checkpoint_conventions
 from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.learned.checkpoint import (
+    SHIPPED,
+    read_metadata,
+    resolve_checkpoint,
+    shipped_checkpoint_path,
+)
 from triplet_normal_ros.training.recipes import RECIPES, Recipe
 
 #: What docs/MODEL.md and docs/RESULTS.md state for the range network.

@@ -1,15 +1,15 @@
-"""Plane fits at several scales (core/scales.py) and the scale head that blends them (core/model.py)."""
+"""Plane fits at several scales (core/learned/scales.py) and the scale head that blends them (core/learned/model.py)."""
 
 import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core.checkpoint import load_checkpoint, save_checkpoint
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.model import TripletNormalNet
-from triplet_normal_ros.core.neighbours import NeighbourIndex
-from triplet_normal_ros.core.patches import build_patches, to_world
-from triplet_normal_ros.core.scales import CUES_PER_SCALE, check_scales, cue_count
+from triplet_normal_ros.core.learned.checkpoint import load_checkpoint, save_checkpoint
+from triplet_normal_ros.core.learned.model import TripletNormalNet
+from triplet_normal_ros.core.learned.patches import build_patches, to_world
+from triplet_normal_ros.core.learned.scales import CUES_PER_SCALE, check_scales, cue_count
+from triplet_normal_ros.core.search.neighbours import NeighbourIndex
 
 SCALES = (8, 16, 32, 64, 128)
 
@@ -137,7 +137,8 @@ def test_inlier_seeds_need_a_scale_head():
 
 
 def test_a_pixel_grid_pool_gives_the_fits_a_nearest_point_pool_gives_on_a_dense_plane():
-    from triplet_normal_ros.core.organized import GridIndex, range_pitch
+    from triplet_normal_ros.core.range_image.check import range_pitch
+    from triplet_normal_ros.core.search.grid import GridIndex
 
     h, w = 120, 160  # a tilted plane seen by a pinhole camera, 2 m away: dense, so every ball is full
     u, v = np.meshgrid((np.arange(w) - w / 2) / 1000, (np.arange(h) - h / 2) / 1000)  # 2 mm pixels

@@ -7,11 +7,11 @@ import threading
 import numpy as np
 import pytest
 
-from triplet_normal_ros.core import defaults
-from triplet_normal_ros.core.conventions import METHODS, PCA_DEFAULT_K
+from triplet_normal_ros.core.config import defaults
+from triplet_normal_ros.core.config.conventions import METHODS, PCA_DEFAULT_K
+from triplet_normal_ros.core.config.plan import CLOUDS, make_plan, plan_table
+from triplet_normal_ros.core.config.settings import Settings, reason
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.plan import CLOUDS, make_plan, plan_table
-from triplet_normal_ros.core.settings import Settings, reason
 from triplet_normal_ros.core.throughput import PROBE_SHAPE, probe_cloud
 from triplet_normal_ros.errors import EstimatorError
 from triplet_normal_ros.evaluation.metrics import angles_deg

@@ -12,8 +12,8 @@ import torch
 from safetensors import safe_open
 from safetensors.torch import save_file
 
-from triplet_normal_ros.core import tensorfile
-from triplet_normal_ros.core.checkpoint import SHIPPED, shipped_checkpoint_path
+from triplet_normal_ros.core.learned import tensorfile
+from triplet_normal_ros.core.learned.checkpoint import SHIPPED, shipped_checkpoint_path
 from triplet_normal_ros.errors import CheckpointError
 
 TENSORS = {

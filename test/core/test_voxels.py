@@ -1,5 +1,5 @@
-"""Sorted cell lists (core/voxels.py): the KD-tree's neighbours exactly, on CPU tensors, and the estimator's 'voxel'
-search giving the KD-tree's normals."""
+"""Sorted cell lists (core/search/voxels.py): the KD-tree's neighbours exactly, on CPU tensors, and the estimator's
+'voxel' search giving the KD-tree's normals."""
 
 import numpy as np
 import pytest
@@ -7,11 +7,11 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from triplet_normal_ros.core.config.plan import make_plan
+from triplet_normal_ros.core.config.settings import Settings
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.neighbours import NeighbourIndex
-from triplet_normal_ros.core.plan import make_plan
-from triplet_normal_ros.core.settings import Settings
-from triplet_normal_ros.core.voxels import VoxelIndex
+from triplet_normal_ros.core.search.neighbours import NeighbourIndex
+from triplet_normal_ros.core.search.voxels import VoxelIndex
 from triplet_normal_ros.evaluation.bench import torus_cloud
 
 

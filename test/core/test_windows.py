@@ -7,12 +7,14 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core import eigen, hybrid, windows
-from triplet_normal_ros.core.conventions import DEPTH_RADIUS, LIDAR_RADIUS, PCA_DEFAULT_K
+from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS, LIDAR_RADIUS, PCA_DEFAULT_K
+from triplet_normal_ros.core.config.plan import make_plan
+from triplet_normal_ros.core.config.settings import Settings
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.organized import range_pitch
-from triplet_normal_ros.core.plan import make_plan
-from triplet_normal_ros.core.settings import Settings
+from triplet_normal_ros.core.pca import eigen
+from triplet_normal_ros.core.range_image import image as windows
+from triplet_normal_ros.core.range_image import survey as hybrid
+from triplet_normal_ros.core.range_image.check import range_pitch
 
 HEIGHT, WIDTH, FOCAL = 60, 80, 70.0
 
@@ -317,7 +319,7 @@ def test_the_gate_also_reads_the_windows_the_survey_answers_from(kind: str) -> N
     """Hybrid's gate opens where the parts of the first window or of the slope-fitted one depart from its plane. On a
     close-range fold frame (a seed no study or eval uses), where only the fitted window's parts depart, that window's
     survey is off as it is across a fold, and hybrid answers those pixels with the network, far nearer the truth."""
-    from triplet_normal_ros.core.conventions import HYBRID_BEND, HYBRID_GATE
+    from triplet_normal_ros.core.config.conventions import HYBRID_BEND, HYBRID_GATE
     from triplet_normal_ros.simulation.fold_scenes import fold_frame
 
     frame = fold_frame(500, kind)

@@ -25,9 +25,9 @@ import numpy as np
 import pytest
 from helpers import HELDOUT_SHAPE, heldout_cad_cloud
 
-from triplet_normal_ros.core.checkpoint import default_checkpoint_path, read_metadata
-from triplet_normal_ros.core.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
+from triplet_normal_ros.core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.learned.checkpoint import default_checkpoint_path, read_metadata
 from triplet_normal_ros.evaluation.metrics import angles_rad, ratio_interval
 from triplet_normal_ros.training.dataset import build_dataset
 

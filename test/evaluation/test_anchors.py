@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from triplet_normal_ros.core.conventions import bbox_diagonal
+from triplet_normal_ros.core.config.conventions import bbox_diagonal
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.evaluation import anchors, pcl
 from triplet_normal_ros.evaluation.bench import NOISE_REL, Cloud, anchors_markdown, bench_one, torus_cloud, torus_sample

@@ -21,10 +21,10 @@ def test_bench_writes_methods_side_by_side_searches_matmul_and_conversion(tmp_pa
     assert len(rows) == 4  # two PCA rows on each cloud
     for row in rows:
         cells = [c.strip() for c in row.strip("|").split("|")]
-        # PCA over the whole ball of an organized cloud is the integral-image window's (core/windows.py); each row is
-        # labelled with its plan's steps (core/plan.py)
+        # PCA over the whole ball of an organized cloud is the integral-image window's (core/range_image/image.py); each
+        # row is labelled with its plan's steps (core/config/plan.py)
         window = cells[0].startswith("depth frame") and "k = 512" in cells[1]
-        path = cells[2].removesuffix(" (compiled)")  # the CPU's windows are compiled (core/fused.py)
+        path = cells[2].removesuffix(" (compiled)")  # the CPU's windows are compiled (core/range_image/image_numba.py)
         assert path == ("integral-image windows" if window else "pool PCA, KD-tree pools") and cells[3] == "300"
         assert float(cells[-1]) > 0 and float(cells[-2]) > 0
         if "k = 30" in cells[1]:

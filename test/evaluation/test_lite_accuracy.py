@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from helpers import HELDOUT_SHAPE, heldout_cad_cloud
 
-from triplet_normal_ros.core.conventions import POOL_FACTOR, bbox_diagonal
+from triplet_normal_ros.core.config.conventions import POOL_FACTOR, bbox_diagonal
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.evaluation.metrics import msae
 

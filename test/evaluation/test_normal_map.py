@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from triplet_normal_ros.evaluation.normal_map import normals_to_rgb, write_png
 from triplet_normal_ros.evaluation.plots import labelled_panels
+from triplet_normal_ros.io.normal_map import normals_to_rgb, write_png
 
 
 def test_facing_the_camera_is_blue_and_holes_are_black() -> None:

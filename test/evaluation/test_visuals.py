@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from triplet_normal_ros.evaluation.normal_map import normals_to_rgb
-from triplet_normal_ros.evaluation.visuals import (
+from triplet_normal_ros.io.normal_map import normals_to_rgb
+from triplet_normal_ros.pipeline.visuals import (
     MAX_SEGMENTS,
     length_reason,
     normal_image,

@@ -14,14 +14,15 @@ from helpers import faces_viewpoint
 from scipy.spatial import cKDTree
 from std_msgs.msg import Header
 
-from triplet_normal_ros.core import defaults
+from triplet_normal_ros.core.config import defaults
+from triplet_normal_ros.core.config.settings import Settings
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.frames import COLLINEAR_RATIO
-from triplet_normal_ros.core.settings import Settings
+from triplet_normal_ros.core.pca.frames import COLLINEAR_RATIO
 from triplet_normal_ros.errors import CloudFormatError, EstimationCancelled, EstimatorError
 from triplet_normal_ros.io.bags import TYPESTORE, BagMessage, as_message, decode_cloud, encode_message
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, make_cloud, read_field
-from triplet_normal_ros.pipeline.messages import Answer, MessageSettings, answer_message, viewpoint_reason
+from triplet_normal_ros.pipeline.message_settings import MessageSettings, viewpoint_reason
+from triplet_normal_ros.pipeline.messages import Answer, answer_message
 
 HEADER = Header(stamp=Time(sec=17, nanosec=42), frame_id="sensor")
 RADIUS = 0.1

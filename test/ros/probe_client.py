@@ -12,7 +12,7 @@ from contextlib import contextmanager
 from rcl_interfaces.msg import ParameterDescriptor
 from sensor_msgs.msg import PointCloud2
 
-from triplet_normal_ros.ros.replay import Frame, ReplayClient
+from triplet_normal_ros.ros.tools.replay import Frame, ReplayClient
 
 
 class ProbeClient(ReplayClient):

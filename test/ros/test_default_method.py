@@ -20,7 +20,7 @@ from helpers import angles_deg, ball_pca, faces_viewpoint, held_out_depth_frame
 from probe_client import ProbeClient, matched_client
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field, read_xyz
-from triplet_normal_ros.ros.replay import Frame
+from triplet_normal_ros.ros.tools.replay import Frame
 from triplet_normal_ros.simulation.depth_camera import camera_rays, kinect_sigma
 
 pytestmark = pytest.mark.slow  # a colcon build, a node process, and hybrid on a full frame (tens of seconds)

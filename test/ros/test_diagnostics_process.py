@@ -24,7 +24,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2, PointField
 
 from triplet_normal_ros.ros.health import REJECTED_IN_A_ROW_ERROR
-from triplet_normal_ros.ros.replay import load_frame
+from triplet_normal_ros.ros.tools.replay import load_frame
 
 pytestmark = pytest.mark.slow  # colcon build and a node process
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from conftest import PACKAGE, REPO, STARTUP_S, site_packages
 
-from triplet_normal_ros.ros.node_process import node_env
+from triplet_normal_ros.ros.tools.node_process import node_env
 
 
 @pytest.mark.slow  # colcon build and a node process

@@ -22,7 +22,7 @@ from probe_client import cropped
 from rclpy.qos import QoSProfile
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field
-from triplet_normal_ros.ros.replay import RELIABLE_INPUT, SENSOR_INPUT, Frame, ReplayClient, load_frame
+from triplet_normal_ros.ros.tools.replay import RELIABLE_INPUT, SENSOR_INPUT, Frame, ReplayClient, load_frame
 from triplet_normal_ros.ros.transport import LEGACY_PROFILE_ENV, PROFILE_NAME, fast_dds_major, read_by, ros_prefixes
 
 pytestmark = pytest.mark.slow  # colcon build, a node process, full frames

@@ -15,7 +15,7 @@ from probe_client import ProbeClient, cropped
 from rclpy.parameter_client import AsyncParameterClient
 from test_launch import OWN, PARAMS_FILE, PRESET, applied, launched, own_params
 
-from triplet_normal_ros.ros.replay import load_frame
+from triplet_normal_ros.ros.tools.replay import load_frame
 
 
 @pytest.mark.slow  # colcon build and a node process

@@ -18,7 +18,7 @@ from sensor_msgs.msg import PointCloud2
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field
 from triplet_normal_ros.ros import diagnostics
 from triplet_normal_ros.ros.managed_node import NODE_NAME
-from triplet_normal_ros.ros.replay import Frame, load_frame
+from triplet_normal_ros.ros.tools.replay import Frame, load_frame
 
 pytestmark = pytest.mark.slow  # colcon build and a node process
 

@@ -1,5 +1,6 @@
 """One rule per setting: the running node, `triplet-normal estimate`, `bag` and `bags` refuse a bad value in the same
-words, those of the setting's rule (`core.settings.reason`; the viewpoint's is `pipeline.messages.viewpoint_reason`).
+words, those of the setting's rule (`core.settings.reason`; the viewpoint's is
+`pipeline.message_settings.viewpoint_reason`).
 
 The CLI puts the option's name where the rule names the setting; the node adds what its k of 0 means. The node is a
 real rclpy node, whose descriptors carry ranges: a value outside one is refused by rclpy first, in its own words
@@ -18,8 +19,8 @@ from rclpy.context import Context
 from rclpy.parameter import Parameter
 
 from triplet_normal_ros.cli.main import main
-from triplet_normal_ros.core.settings import reason
-from triplet_normal_ros.pipeline.messages import viewpoint_reason
+from triplet_normal_ros.core.config.settings import reason
+from triplet_normal_ros.pipeline.message_settings import viewpoint_reason
 from triplet_normal_ros.ros.node import TripletNormalNode
 from triplet_normal_ros.ros.params import K_METHOD_DEFAULT, SPEC_BY_NAME, validate
 

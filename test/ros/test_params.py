@@ -12,9 +12,9 @@ import torch
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 
-from triplet_normal_ros.core import defaults
-from triplet_normal_ros.core.checkpoint import read_metadata, shipped_checkpoint_path
-from triplet_normal_ros.core.conventions import PCA_DEFAULT_K
+from triplet_normal_ros.core.config import defaults
+from triplet_normal_ros.core.config.conventions import PCA_DEFAULT_K
+from triplet_normal_ros.core.learned.checkpoint import read_metadata, shipped_checkpoint_path
 from triplet_normal_ros.ros.node import StartupError, TripletNormalNode
 from triplet_normal_ros.ros.params import (
     K_METHOD_DEFAULT,

@@ -1,5 +1,5 @@
-"""The YAML files under config/ are the node's declared defaults (`core/defaults.py`, through ros/params.SPECS) written
-out, value by value: params.yaml names every node parameter with its default, depth_camera.yaml is the defaults,
+"""The YAML files under config/ are the node's declared defaults (`core/config/defaults.py`, through ros/params.SPECS)
+written out, value by value: params.yaml names every node parameter with its default, depth_camera.yaml is the defaults,
 lidar.yaml the defaults with `defaults.LIDAR` on top. A YAML file cannot import the defaults, so these tests are what
 keeps them one home; they are the only tests of the files' contents."""
 
@@ -11,7 +11,7 @@ import pytest
 import yaml
 from conftest import REPO
 
-from triplet_normal_ros.core import defaults
+from triplet_normal_ros.core.config import defaults
 from triplet_normal_ros.ros.params import SPEC_BY_NAME, validate_all
 
 

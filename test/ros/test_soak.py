@@ -4,7 +4,7 @@ machine's speed, it must answer every cloud it answers with that cloud's own hea
 normals plain PCA of the k nearest gives; account for every arrival as processed or dropped; answer the last cloud of
 the flood (the one-slot mailbox never drops the newest); keep its memory flat; and exit cleanly on SIGINT.
 
-docs/tools/soak.py runs the same flood (triplet_normal_ros/ros/overload.py) for longer and writes the figures to
+docs/tools/soak.py runs the same flood (triplet_normal_ros/ros/tools/overload.py) for longer and writes the figures to
 docs/RESULTS.md.
 """
 
@@ -21,7 +21,7 @@ from helpers import angles_deg, ball_pca
 from sensor_msgs.msg import PointCloud2
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field, read_xyz
-from triplet_normal_ros.ros.overload import (
+from triplet_normal_ros.ros.tools.overload import (
     FLOOD_DEPTH,
     NODE_PARAMS,
     NodeTotals,

@@ -23,10 +23,10 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, PointCloud2
 from visualization_msgs.msg import Marker, MarkerArray
 
-from triplet_normal_ros.evaluation.normal_map import normals_to_rgb
-from triplet_normal_ros.evaluation.visuals import MAX_SEGMENTS, length_reason
+from triplet_normal_ros.io.normal_map import normals_to_rgb
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, make_cloud, read_field, read_xyz
-from triplet_normal_ros.ros.replay import Frame, load_frame
+from triplet_normal_ros.pipeline.visuals import MAX_SEGMENTS, length_reason
+from triplet_normal_ros.ros.tools.replay import Frame, load_frame
 
 pytestmark = pytest.mark.slow  # colcon build and a node process
 

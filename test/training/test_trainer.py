@@ -14,9 +14,9 @@ import torch
 
 from triplet_normal_ros.cli import train
 from triplet_normal_ros.cli.main import main
-from triplet_normal_ros.core.checkpoint import default_checkpoint_path, load_checkpoint, read_metadata
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.core.neighbours import NeighbourIndex
+from triplet_normal_ros.core.learned.checkpoint import default_checkpoint_path, load_checkpoint, read_metadata
+from triplet_normal_ros.core.search.neighbours import NeighbourIndex
 from triplet_normal_ros.errors import TrainingError, UsageError
 from triplet_normal_ros.evaluation.ablation import _variants, reference_estimator
 from triplet_normal_ros.training.batches import PatchSampler

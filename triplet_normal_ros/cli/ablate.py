@@ -3,7 +3,7 @@
 import argparse
 from pathlib import Path
 
-from ..core import defaults
+from ..core.config import defaults
 from . import args as checks
 
 DESCRIPTION = """Train every ablation variant at a stated, reduced budget and score it on the validation set.
@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.checkpoint import resolve_checkpoint
+    from ..core.learned.checkpoint import resolve_checkpoint
     from ..evaluation.ablation import Budget, run
 
     checks.at_least("patches-per-shape", args.patches_per_shape, 1)

@@ -15,8 +15,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from ..core import defaults
-from ..core.settings import Settings, reason
+from ..core.config import defaults
+from ..core.config.settings import Settings, reason
 from ..errors import UsageError
 
 #: The options that are estimator settings, by setting (the seed is no option: answers repeat exactly).
@@ -75,7 +75,7 @@ def device(name: str | None) -> None:
 
 def viewpoint(value: Sequence[float] | None) -> None:
     """--viewpoint, when given: three finite numbers (the node's `viewpoint` rule)."""
-    from ..pipeline.messages import viewpoint_reason
+    from ..pipeline.message_settings import viewpoint_reason
 
     why = None if value is None else viewpoint_reason(value)
     if why:
@@ -304,7 +304,7 @@ def _file_reason(name: str, value: Any) -> str | None:
     if name in _BOOLEANS:
         return None if isinstance(value, bool) else f"{name} must be bool, got {type(value).__name__} {value!r}"
     if name == "viewpoint":
-        from ..pipeline.messages import viewpoint_reason
+        from ..pipeline.message_settings import viewpoint_reason
 
         return viewpoint_reason(value)
     if name == "k":

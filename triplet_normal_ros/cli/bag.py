@@ -15,14 +15,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core import defaults
-from ..core.conventions import METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
+from ..core.config import defaults
+from ..core.config.conventions import METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
 from ..errors import CloudFormatError, EstimationCancelled, EstimatorError, UsageError
 from . import args as checks
 
 if TYPE_CHECKING:
     from ..core.estimator import NormalEstimator
-    from ..pipeline.messages import MessageSettings
+    from ..pipeline.message_settings import MessageSettings
 
 #: io.bag_output.SEGMENT_SECONDS (a test checks), written here so that `--help` does not import rosbags.
 SEGMENT_SECONDS = 30.0
@@ -121,9 +121,9 @@ def run(args: argparse.Namespace) -> int:
 def checkpoints_in_force(args: argparse.Namespace) -> str:
     """The checkpoints the estimate loads where this runs, in words (`plan.checkpoints_in_words`): --checkpoint, or
     without it the node's, the shipped ones for the device ('range on range images and lite otherwise' on a CPU)."""
-    from ..core.device import device_type
-    from ..core.plan import checkpoints_in_words
-    from ..core.settings import Settings
+    from ..core.config.device import device_type
+    from ..core.config.plan import checkpoints_in_words
+    from ..core.config.settings import Settings
 
     chosen = Settings(method=args.method, checkpoint=args.checkpoint or "")
     return checkpoints_in_words(chosen, device_type(args.device))
@@ -148,7 +148,7 @@ def check_options(args: argparse.Namespace) -> None:
 
 def message_settings(args: argparse.Namespace) -> MessageSettings:
     """What every cloud is answered with: the node's per-cloud step (`answer_message`) under the options."""
-    from ..pipeline.messages import MessageSettings
+    from ..pipeline.message_settings import MessageSettings
 
     return MessageSettings(
         checks.estimator_settings(args, args.radius), not args.no_orient, tuple(args.viewpoint), not args.keep_zeros

@@ -3,7 +3,7 @@
 import argparse
 from pathlib import Path
 
-from ..core.conventions import METHODS
+from ..core.config.conventions import METHODS
 from . import args as checks
 
 DESCRIPTION = """Points/s per stage of every method on a simulated 640x480 depth frame and a noisy torus, side by

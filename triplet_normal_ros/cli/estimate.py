@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import defaults
-from ..core.conventions import METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
+from ..core.config import defaults
+from ..core.config.conventions import METHODS, NEIGHBOUR_SEARCHES, PCA_DEFAULT_K
 from ..errors import UsageError
 from . import args as checks
 
@@ -89,7 +89,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Read IN, estimate at all points or at --indices, orient if asked, write OUT, print one summary line."""
     from ..core.cloud import without_no_returns
-    from ..core.conventions import bbox_diagonal
+    from ..core.config.conventions import bbox_diagonal
     from ..io.cloud_files import read_cloud, read_indices, write_normals
 
     checks.apply_params_file(args)

@@ -3,8 +3,8 @@
 import argparse
 from pathlib import Path
 
-from ..core import defaults
-from ..core.conventions import RADIUS_FRACTION
+from ..core.config import defaults
+from ..core.config.conventions import RADIUS_FRACTION
 from ..errors import UsageError
 from . import args as checks
 

@@ -5,7 +5,7 @@ import dataclasses
 import math
 from pathlib import Path
 
-from ..core import defaults
+from ..core.config import defaults
 from ..errors import TrainingError, UsageError
 from . import args as checks
 
@@ -107,8 +107,8 @@ def recipe_from_args(args: argparse.Namespace):
 
 def _check_fits(recipe) -> None:
     """The scale head's counts: valid, and within the pool (POOL_FACTOR × k) that they choose their points from."""
-    from ..core.conventions import POOL_FACTOR
-    from ..core.scales import check_scales
+    from ..core.config.conventions import POOL_FACTOR
+    from ..core.learned.scales import check_scales
 
     pool = POOL_FACTOR * recipe.k
     for flag, counts in (("--scales", recipe.scales), ("--inlier-seeds", recipe.inlier_seeds)):
@@ -123,7 +123,7 @@ def _check_fits(recipe) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.checkpoint import default_checkpoint_path
+    from ..core.learned.checkpoint import default_checkpoint_path
     from ..training.trainer import train
 
     checks.device(args.device)

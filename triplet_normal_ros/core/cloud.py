@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import EstimatorError
-from . import defaults
+from .config import defaults
+from .config.settings import Settings
 from .estimator import NormalEstimator
 from .orientation import orient_towards_viewpoint
-from .settings import Settings
 
 
 @dataclass(frozen=True)

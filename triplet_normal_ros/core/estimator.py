@@ -1,10 +1,10 @@
 """NormalEstimator: the one entry point that the node, the CLI, evaluation and the tests call.
 
-It loads the checkpoint once and holds the settings; each `estimate` takes one snapshot of them (or the `settings`
-given for that call), asks `plan.plan_cloud` which path the cloud takes, and executes that plan: the integral-image
-windows of an organized range image (`windows.py`), hybrid's survey and gate (`hybrid.py`), and the chunk kernels over
-pools from the planned search (`kernels.py`, `search.py`). Memory stays bounded by the chunk size. A call keeps its
-state in its own `kernels.Call`, so one estimator serves several threads at once.
+It loads the checkpoint once and holds the settings; each `estimate` takes one snapshot of them (or the `settings` given
+for that call), asks `route.plan_cloud` which path the cloud takes, and runs that path: an organized range image's
+(`paths/range_image.py`: windows, their PCA or hybrid's survey and gate, the lattice) or every other cloud's
+(`paths/pools.py`: chunk kernels over pools from the planned search). Memory stays bounded by the chunk size. A call
+keeps its state in its own `paths.call.Call`, so one estimator serves several threads at once.
 """
 
 from __future__ import annotations
@@ -19,17 +19,17 @@ import numpy as np
 import torch
 
 from ..errors import EstimatorError
-from . import defaults
-from .checkpoint import load_checkpoint
-from .conventions import PCA_DEFAULT_K
-from .device import resolve_device
-from .frames import surface_variation
-from .hybrid import hybrid_kernel, window_hybrid
-from .kernels import CHUNK, PCA_CHUNK, Call, RunInfo, finish, learned_kernel, over_pools, pca_kernel
-from .plan import Plan, checkpoint_for, checkpoints_for, plan_cloud
-from .search import ScanLines, open_search, search_radii
-from .settings import Settings
-from .windows import MomentImage
+from .config import defaults
+from .config.conventions import PCA_DEFAULT_K
+from .config.device import resolve_device
+from .config.plan import checkpoint_for, checkpoints_for
+from .config.settings import Settings
+from .learned.checkpoint import load_checkpoint
+from .paths.call import Call, Cloud, RunInfo
+from .paths.pools import pool_path
+from .paths.range_image import range_image_path
+from .route import plan_cloud
+from .search.pools import search_radii
 
 __all__ = ["NormalEstimator", "RunInfo", "Settings"]
 
@@ -53,7 +53,7 @@ class NormalEstimator:
     both significantly (F statistic > `gate`) and substantially (it departs from the plane by an RMS height > `bend` ×
     radius): near edges and folds, where PCA blurs and the network pays for itself, and not on the mild waviness of
     real depth sensors (docs/MODEL.md). On an organized range image the survey is the integral-image window and the
-    gate reads the window's parts (`hybrid.structure`).
+    gate reads the window's parts (`survey.structure`).
 
     Every argument is a `Settings` field and is checked by its rule (`settings.reason`); an empty `checkpoint` means
     the shipped one for the device (`defaults.shipped_checkpoint`). The numeric settings may be changed between
@@ -157,7 +157,7 @@ class NormalEstimator:
         cloud, all on one row or one column of the image (one scan line).
         Normal signs are arbitrary; see `orientation.orient_towards_viewpoint`. `progress(n)` is called with the
         number of query rows finished after each chunk (non-finite ones count at once), for a progress bar.
-        `shape` = (height, width) of an organized cloud lets neighbours come from its pixel grid (see `plan.py`).
+        `shape` = (height, width) of an organized cloud lets neighbours come from its pixel grid (see `config/plan.py`).
         `point_ids` (N,) int: each point's index in a larger cloud these points were cut from (a tile with its halo);
         the network's subsample of a pool is a hash of (point, neighbour, seed), so naming the points as the whole
         cloud does gives a tile's points the whole cloud's answer. `settings`: this call's own snapshot (its method,
@@ -180,49 +180,13 @@ class NormalEstimator:
         # Measuring the range image's pitch belongs to the stage that reads it: the windows, or the searches.
         first = ("pca" if plan.kernel == "pca" else "survey") if plan.survey == "window" else "neighbours"
         call.timings[first] = call.timings.get(first, 0.0) + time.perf_counter() - start
-        if plan.survey == "window":
-            return self._windows(call, plan, points, cloud, shape, pitch, query, progress)
-        return self._pools(call, plan, points, cloud, shape, pitch, query, progress)
+        path = range_image_path if plan.survey == "window" else pool_path
+        return path(call, plan, Cloud(points, cloud, shape, pitch), query, progress)
 
     def search_radii(self, ranges: np.ndarray) -> np.ndarray:
         """The ball radius pools are searched at for points at these `ranges` from the sensor (`search.search_radii`):
         a tile's halo is the largest of them."""
         return search_radii(self._settings.radius, self._settings.range_scale, ranges)
-
-    def _windows(self, call, plan, points, cloud, shape, pitch, query, progress):
-        """The window survey of an organized range image: window PCA (pca), or hybrid's survey and gate."""
-        stage = "pca" if plan.kernel == "pca" else "survey"
-        with call.timed(stage):
-            image = _image(plan)(cloud, shape, pitch)
-        if plan.kernel == "pca":
-            with call.timed(stage):
-                return _window_pca(call, image, query, progress)
-        lines = ScanLines(shape, self.device)
-
-        def open_pools():
-            return open_search(plan.search, points, cloud, shape, pitch, self.device)
-
-        return window_hybrid(call, image, cloud, query, open_pools, lines, progress)
-
-    def _pools(self, call, plan, points, cloud, shape, pitch, query, progress):
-        """Every finite query point through the method's chunk kernel over pools from the planned search."""
-        normals = np.full((len(query), 3), np.nan, dtype=np.float32)
-        curvature = np.full(len(query), np.nan, dtype=np.float32)
-        with call.timed("neighbours"):
-            search = open_search(plan.search, points, cloud, shape, pitch, self.device)
-        # Non-finite query points keep their NaN rows without costing a search (a third of a Kinect frame).
-        todo = np.flatnonzero(search.finite[query])
-        call.run.estimated = len(todo)
-        if progress is not None:
-            progress(len(query) - len(todo))
-        kernel = {"pca": pca_kernel, "learned": learned_kernel, "hybrid": hybrid_kernel}[plan.kernel]
-        chunk = PCA_CHUNK if plan.kernel == "pca" else CHUNK
-        lines = ScanLines(shape, self.device) if plan.scan_lines else None
-        for out, answer, answer_curvature in over_pools(call, search, cloud, query, todo, kernel, chunk, lines):
-            normals[out], curvature[out] = answer, answer_curvature
-            if progress is not None:
-                progress(len(out))
-        return normals, curvature
 
     def _own(self, settings: Settings) -> Settings:
         """`settings`, when they keep this estimator's model: the same method, checkpoint and device."""
@@ -243,31 +207,6 @@ class NormalEstimator:
     neighbours = _setting("neighbours", "The neighbour search asked for (`plan.make_plan` decides what runs).")
     batch_size = _setting("batch_size", "Patches per forward pass; also bounds the cancel latency.")
     seed = _setting("seed", "Seeds the network's subsample of each pool.")
-
-
-def _image(plan: Plan) -> type:
-    """What computes the windows: the compiled kernels (`fused.CompiledImage`) or torch (`windows.MomentImage`)."""
-    if plan.engine == "compiled":
-        from .fused import CompiledImage
-
-        return CompiledImage
-    return MomentImage
-
-
-def _window_pca(call: Call, image: MomentImage, query: np.ndarray, progress) -> tuple[np.ndarray, np.ndarray]:
-    """PCA of every pixel's window at once (see windows.py), then the query's rows."""
-    s = call.settings
-    fit = image.pca(s.radius, s.range_scale)
-    finite = image.finite.reshape(-1)
-    whole = len(query) == len(finite) and bool(query[0] == 0) and bool((np.diff(query) == 1).all())
-    call.run.estimated = int(finite.sum()) if whole else int(finite[torch.from_numpy(query)].sum())
-    if image.compiled:
-        normals, curvature = image.finish()
-    else:
-        normals, curvature = finish(fit.normal, surface_variation(fit.eigvals), fit.valid & finite)
-    if progress is not None:
-        progress(len(query))
-    return (normals, curvature) if whole else (normals[query], curvature[query])
 
 
 def _as_cloud(points: np.ndarray) -> np.ndarray:

@@ -16,8 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .config.plan import Plan, compiled
 from .estimator import NormalEstimator
-from .plan import Plan
+from .learned import patches_numba, scales_numba
+from .pca import pools_numba
+from .range_image import check_numba, survey_numba
+from .search import kdtree_numba
 
 #: The probe images (height, width): the corner at two resolutions, enough points to time the network, few enough to
 #: keep start-up within seconds.
@@ -49,7 +53,7 @@ class Throughput:
     #: The path the probe took: an organized camera frame's (`plan.Plan`).
     plan: Plan
     #: The first (warm-up) call's seconds: it compiles the CPU's window kernels when their cache is cold
-    #: (`fused.py`), so the first cloud does not.
+    #: (`range_image/image_numba.py`), so the first cloud does not.
     warm_up_s: float = 0.0
     #: Seconds each call costs whatever its size.
     per_call_s: float = 0.0
@@ -78,13 +82,9 @@ def measure(estimator: NormalEstimator, seed: int = 0, points_dominate_s: float 
     over `points_dominate_s` is timed once and alone."""
     coarse, fine = probe_cloud(estimator.radius, seed), probe_cloud(estimator.radius, seed, FINE_PROBE_SHAPE)
     start = time.perf_counter()
-    if estimator.device.type == "cpu":  # every compiled kernel, whichever the method: a reload finds them ready
-        from . import fused, fused_pools, fused_scales, kdtree
-
-        fused.warm()
-        fused_pools.warm()
-        fused_scales.warm()
-        kdtree.warm()
+    if compiled(estimator.device.type):  # every compiled kernel, whichever the method: a reload finds them ready
+        for kernels in (check_numba, survey_numba, pools_numba, patches_numba, scales_numba, kdtree_numba):
+            kernels.warm()
     estimator.estimate(coarse, shape=PROBE_SHAPE)  # warm-up: first-call allocations, thread pools
     warm_up = time.perf_counter() - start
     coarse_s = _fastest(estimator, coarse, PROBE_SHAPE, points_dominate_s)

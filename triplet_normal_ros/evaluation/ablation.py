@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ..core.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
+from ..core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from ..core.estimator import NormalEstimator
 from ..training.recipes import RECIPES, Recipe
 from ..training.trainer import train

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.conventions import DEPTH_RADIUS, POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
+from ..core.config.conventions import DEPTH_RADIUS, POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from . import anchors as outside
 from .metrics import invalid_count, msae
 
@@ -82,7 +82,7 @@ def torus_sample(n: int, seed: int = 0, major: float = 1.0, minor: float = 0.4) 
 
 def timed_methods(checkpoint: str | None, method: str | None) -> list[tuple[str, dict]]:
     """(label, NormalEstimator keyword arguments) of every method timed; the lite checkpoint when it ships."""
-    from ..core.checkpoint import SHIPPED
+    from ..core.learned.checkpoint import SHIPPED
 
     rows = [
         (f"pca, k = {PCA_SMALL_K}", {"method": "pca", "k": PCA_SMALL_K}),
@@ -165,8 +165,8 @@ def neighbour_rows(points: np.ndarray, shape, device: str, queries: int) -> list
     """(search, pool, seconds per query, mean neighbours) of the KD-tree and the pixel grid on the depth frame."""
     import torch
 
-    from ..core.organized import range_pitch
-    from ..core.search import open_search
+    from ..core.range_image.check import range_pitch
+    from ..core.search.pools import open_search
 
     valid = np.flatnonzero(np.isfinite(points).all(axis=1))
     rows = torch.from_numpy(np.sort(np.random.default_rng(0).choice(valid, min(queries, len(valid)), replace=False)))
@@ -199,7 +199,7 @@ def matmul_gflops(size: int = 1024, repeats: int = 10) -> float:
 
 def network_mflop(checkpoint: str | None) -> tuple[int, float]:
     """(k, MFLOP per patch) of the checkpoint's network, by arithmetic from its layer widths."""
-    from ..core.checkpoint import read_metadata, resolve_checkpoint
+    from ..core.learned.checkpoint import read_metadata, resolve_checkpoint
 
     meta = read_metadata(resolve_checkpoint(checkpoint or "default"))
     widths = [3, *meta["architecture"]["encoder"]]

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
+from ..core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from ..errors import CloudFileError
 from ..io.cloud_files import read_normals_file, read_points
 from . import segment_eval
@@ -296,7 +296,7 @@ def _header(command: str, checkpoint: str, quick: bool, scorer: CloudScorer, per
 def _sha256(checkpoint: str) -> str:
     import hashlib
 
-    from ..core.checkpoint import resolve_checkpoint
+    from ..core.learned.checkpoint import resolve_checkpoint
 
     return hashlib.sha256(resolve_checkpoint(checkpoint).read_bytes()).hexdigest()
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.conventions import DEPTH_RADIUS, LIDAR_RADIUS, LIDAR_RANGE_SCALE, POOL_FACTOR
+from ..core.config.conventions import DEPTH_RADIUS, LIDAR_RADIUS, LIDAR_RANGE_SCALE, POOL_FACTOR
 from ..core.estimator import NormalEstimator
 from .metrics import angles_rad
 
@@ -84,7 +84,7 @@ def range_estimators(
     frame), learned, and hybrid (on these organized frames: the window survey); with the shipped default, also the
     lite and range checkpoints' learned and hybrid (range is a CPU's choice on these frames). Every one grows its
     ball with `range_scale`."""
-    from ..core.checkpoint import SHIPPED
+    from ..core.learned.checkpoint import SHIPPED
 
     rows = _range_rows(checkpoint or "default", device, k, radius, SHIPPED)
     for estimator in rows.values():

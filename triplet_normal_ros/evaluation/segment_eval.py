@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ..core.conventions import DEPTH_RADIUS
+from ..core.config.conventions import DEPTH_RADIUS
 from ..core.estimator import NormalEstimator
 from ..simulation.range_scans import fold_frames
 from .segmentation import (

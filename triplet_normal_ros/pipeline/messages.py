@@ -10,41 +10,16 @@ This layer sits above `core` (the estimator) and `io` (the message layout), whic
 
 from __future__ import annotations
 
-import math
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ..core import defaults
 from ..core.cloud import estimate_cloud
 from ..core.estimator import NormalEstimator
-from ..core.settings import Settings, is_real
-from ..errors import EstimatorError
 from ..io.pointcloud2 import empty_with_normals, read_xyz, with_normals
-
-
-@dataclass(frozen=True)
-class MessageSettings:
-    """Everything that decides the answer to a message: the estimator's settings snapshot, and what the per-cloud step
-    adds around the estimate (which points count, which way normals face). Checked on creation, never changed."""
-
-    estimator: Settings = field(default_factory=Settings)
-    orient: bool = defaults.ORIENT
-    viewpoint: tuple[float, float, float] = defaults.VIEWPOINT
-    zeros_are_no_returns: bool = defaults.ZEROS_ARE_NO_RETURNS
-
-    def __post_init__(self) -> None:
-        why = viewpoint_reason(self.viewpoint)
-        if why:
-            raise EstimatorError(why)
-        object.__setattr__(self, "viewpoint", tuple(float(v) for v in self.viewpoint))
-
-    @property
-    def facing(self) -> tuple[float, float, float] | None:
-        """The point normals face, or None when they keep the signs the estimator gave them."""
-        return self.viewpoint if self.orient else None
+from .message_settings import MessageSettings
 
 
 @dataclass(frozen=True)
@@ -55,15 +30,6 @@ class Answer:
     points: int  # height × width of the input
     finite: int  # points with three finite coordinates
     known: int  # points that got a normal
-
-
-def viewpoint_reason(value: Any) -> str | None:
-    """Why `value` is no viewpoint, or None: the one rule of the node's `viewpoint` and the CLI's --viewpoint."""
-    coordinates = _as_list(value)
-    if coordinates is None or len(coordinates) != 3 or not all(_is_finite_number(v) for v in coordinates):
-        shown = value if coordinates is None else coordinates
-        return f"viewpoint must be three finite numbers [x, y, z], got {shown!r}"
-    return None
 
 
 def answer_message(
@@ -84,18 +50,3 @@ def answer_message(
     )  # fmt: skip
     finite = int(np.isfinite(points).all(axis=1).sum())
     return Answer(with_normals(msg, result.normals, result.curvature), len(points), finite, result.known)
-
-
-def _as_list(value: Any) -> list | None:
-    """The items of a sequence (rclpy hands a double array over as `array.array`), or None for anything else."""
-    if isinstance(value, str | bytes):
-        return None
-    try:
-        return list(value)
-    except TypeError:
-        return None
-
-
-def _is_finite_number(value: object) -> bool:
-    """A finite real number that is not a bool (`settings.is_real`: a YAML `true` is no coordinate)."""
-    return is_real(value) and math.isfinite(value)

@@ -1,14 +1,14 @@
 """The node's parameters as plain data plus their validation, so both are testable without rclpy.
 
-The node turns each :class:`ParamSpec` into a ``ParameterDescriptor`` (type, constraints, description, and the
-inclusive range of a bounded number, which `ros2 param describe` shows and rqt_reconfigure draws as a slider) and
-calls :func:`validate` from its on-set callback; the reason string goes back to whoever tried to set the parameter.
-rclpy checks a range first, in its own words ("out of range"); what a range cannot say (radius > 0 but not 0, k 0 or
-at least 3, a finite number) is said by the parameter's rule. A parameter that is an estimator setting is judged by
-that setting's one rule (`core.settings.reason`), the same rule `triplet-normal estimate`, `bag` and `bags` and the
-estimator itself apply; each range holds every value its rule accepts, so the range never refuses what the rule
-would take. The viewpoint's rule is the message step's (`pipeline.messages.viewpoint_reason`), which `bag` shares; the
-RViz outputs' rules are beside the code that draws them (`evaluation.visuals`); the rest are the node's alone.
+The node turns each :class:`ParamSpec` into a ``ParameterDescriptor`` (type, constraints, description, and the inclusive
+range of a bounded number, which `ros2 param describe` shows and rqt_reconfigure draws as a slider) and calls
+:func:`validate` from its on-set callback; the reason string goes back to whoever tried to set the parameter. rclpy
+checks a range first, in its own words ("out of range"); what a range cannot say (radius > 0 but not 0, k 0 or at least
+3, a finite number) is said by the parameter's rule. A parameter that is an estimator setting is judged by that
+setting's one rule (`core.settings.reason`), the same rule `triplet-normal estimate`, `bag` and `bags` and the estimator
+itself apply; each range holds every value its rule accepts, so the range never refuses what the rule would take. The
+viewpoint's rule is the message step's (`pipeline.message_settings.viewpoint_reason`), which `bag` shares; the RViz
+outputs' rules are beside the code that draws them (`pipeline.visuals`); the rest are the node's alone.
 """
 
 from __future__ import annotations
@@ -19,13 +19,13 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
-from ..core import defaults
-from ..core.conventions import PCA_DEFAULT_K
-from ..core.device import device_type
-from ..core.plan import checkpoints_in_words
-from ..core.settings import Settings, reason
-from ..evaluation.visuals import MAX_SEGMENTS, VisualSettings, length_reason, stride_reason
-from ..pipeline.messages import MessageSettings, viewpoint_reason
+from ..core.config import defaults
+from ..core.config.conventions import PCA_DEFAULT_K
+from ..core.config.device import device_type
+from ..core.config.plan import checkpoints_in_words
+from ..core.config.settings import Settings, reason
+from ..pipeline.message_settings import MessageSettings, viewpoint_reason
+from ..pipeline.visuals import MAX_SEGMENTS, VisualSettings, length_reason, stride_reason
 
 #: Parameters whose change builds a new estimator (loading the checkpoint); the rest apply to the next cloud in place.
 RELOAD_PARAMS = frozenset({"method", "checkpoint", "device"})

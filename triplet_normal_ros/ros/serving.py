@@ -29,8 +29,8 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import PointCloud2
 
 from ..core import throughput
+from ..core.config.plan import per_kind
 from ..core.estimator import NormalEstimator
-from ..core.plan import per_kind
 from ..errors import CheckpointError, CloudFormatError, EstimationCancelled, EstimatorError
 from ..pipeline.messages import answer_message
 from . import diagnostics

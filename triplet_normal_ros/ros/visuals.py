@@ -2,12 +2,12 @@
 
 RViz has no display for normals. ``normals_markers`` (visualization_msgs/MarkerArray) holds a DELETEALL and then one
 LINE_LIST marker with a segment per picked normal, each segment coloured like the normal map
-(`evaluation.visuals.normal_segments`; PCL's visualizer draws normals so). One LINE_LIST is one object for RViz to
+(`pipeline.visuals.normal_segments`; PCL's visualizer draws normals so). One LINE_LIST is one object for RViz to
 draw, where thousands of ARROW markers are thousands of objects that bring RViz to a crawl, and the stride with its
-cap (`evaluation.visuals.MAX_SEGMENTS`) bounds what the node builds per cloud. The DELETEALL makes every array
+cap (`pipeline.visuals.MAX_SEGMENTS`) bounds what the node builds per cloud. The DELETEALL makes every array
 complete on its own: a cloud without normals clears the display, and nothing drawn earlier (another run, another
 stride) stays behind. ``normal_image`` (sensor_msgs/Image, rgb8) is an organized cloud's normal map, the demo's
-(`evaluation.visuals.normal_image`); an unorganized cloud gets none, which the log says once.
+(`pipeline.visuals.normal_image`); an unorganized cloud gets none, which the log says once.
 
 Both carry the answer's header (frame and stamp). Each is built only while its switch is on and something subscribes
 (`get_subscription_count`), so an unwatched output costs nothing. They are built beside the estimate, not in its way:
@@ -38,8 +38,8 @@ from sensor_msgs.msg import Image, PointCloud2
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..evaluation.visuals import Segments, VisualSettings, normal_image, normal_segments
 from ..io.pointcloud2 import NORMAL_FIELDS, read_field, read_xyz
+from ..pipeline.visuals import Segments, VisualSettings, normal_image, normal_segments
 from . import diagnostics
 from .health import OK, Health
 from .mailbox import Mailbox

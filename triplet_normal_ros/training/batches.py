@@ -11,10 +11,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from ..core.conventions import POOL_FACTOR, bbox_diagonal
-from ..core.neighbours import NeighbourIndex
-from ..core.patches import Patches, build_patches
-from ..core.scales import ScaleFits
+from ..core.config.conventions import POOL_FACTOR, bbox_diagonal
+from ..core.learned.patches import Patches, build_patches
+from ..core.learned.scales import ScaleFits
+from ..core.search.neighbours import NeighbourIndex
 from .triplets import mine_triplets
 
 

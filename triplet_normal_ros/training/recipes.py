@@ -6,8 +6,8 @@ a resume under a recipe that optimises something else can be refused.
 
 from dataclasses import dataclass, field, replace
 
-from ..core.conventions import MIN_NEIGHBOURS, RADIUS_FRACTION
-from ..core.model import DEFAULT_ENCODER, DEFAULT_REGRESSOR
+from ..core.config.conventions import MIN_NEIGHBOURS, RADIUS_FRACTION
+from ..core.learned.model import DEFAULT_ENCODER, DEFAULT_REGRESSOR
 from ..errors import TrainingError
 from .losses import RELATIVE_FLOOR_DEG
 

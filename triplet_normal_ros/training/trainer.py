@@ -27,10 +27,10 @@ import torch
 from torch.optim.lr_scheduler import ReduceLROnPlateau
 from tqdm import tqdm
 
-from ..core.checkpoint import load_checkpoint, save_checkpoint
-from ..core.conventions import DEPTH_RADIUS, LIDAR_RADIUS
-from ..core.device import resolve_device
-from ..core.model import TripletNormalNet
+from ..core.config.conventions import DEPTH_RADIUS, LIDAR_RADIUS
+from ..core.config.device import resolve_device
+from ..core.learned.checkpoint import load_checkpoint, save_checkpoint
+from ..core.learned.model import TripletNormalNet
 from ..errors import TrainingError
 from .batches import NormalSet, PatchSampler, TripletSet, collect_normal_patches, collect_triplets
 from .curves import plot_curves

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from ..core.neighbours import NeighbourIndex
+from ..core.search.neighbours import NeighbourIndex
 
 THRESHOLD_DEG = 20.0
 #: Anchors per brute-force block: bounds the (block, N) distance matrix to ~100 MB at N = 100k.

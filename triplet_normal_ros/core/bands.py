@@ -1,0 +1,32 @@
+"""The threads the compiled kernels run on: a kernel takes a band of rows and releases the GIL, and `bands` runs the
+bands on as many Python threads as torch uses (numba's own parallel layers either start a second OpenMP runtime,
+whose spinning threads slow torch's next passes 5-10x, or are not safe to call from two threads at once).
+"""
+
+from __future__ import annotations
+
+import itertools
+from concurrent.futures import ThreadPoolExecutor
+from functools import cache, partial
+
+import numpy as np
+import torch
+
+
+def bands(kernel, lines: int, *args, pieces: int = 1) -> None:
+    """kernel(*args, lo, hi) over [0, lines) cut into `pieces` bands per thread torch uses, run on that many threads
+    (the kernels release the GIL). More bands than threads balance rows that cost more (those beside edges)."""
+    threads = max(1, torch.get_num_threads())
+    edges = np.linspace(0, lines, min(lines, threads * pieces) + 1).astype(np.int64)
+    spans = [(int(lo), int(hi)) for lo, hi in itertools.pairwise(edges) if hi > lo]
+    if threads == 1 or len(spans) == 1:
+        for lo, hi in spans:
+            kernel(*args, lo, hi)
+        return
+    for future in [_executor(threads).submit(partial(kernel, *args, lo, hi)) for lo, hi in spans]:
+        future.result()
+
+
+@cache
+def _executor(threads: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(threads, thread_name_prefix="bands")

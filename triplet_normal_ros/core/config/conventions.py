@@ -1,0 +1,56 @@
+"""The contract between training and inference, defined once.
+
+A checkpoint records these values in its metadata (``conventions``) and loading refuses one trained under others,
+so changing a value here can never silently mismatch a shipped model.
+"""
+
+import numpy as np
+
+#: The methods `NormalEstimator` offers: the network everywhere, PCA, or PCA with the network where it is not flat.
+METHODS = ("learned", "pca", "hybrid")
+#: The learned method draws its k points from the nearest POOL_FACTOR * k points inside the ball; PCA frames and
+#: curvature come from that whole pool.
+POOL_FACTOR = 4
+#: Training radius, and the offline tools' default: this fraction of the cloud's bounding-box diagonal.
+RADIUS_FRACTION = 0.05
+#: The metric radii of the simulated range sets, in training and evaluation alike: 5 cm on depth frames, as robots
+#: use; on 32-beam LiDAR scans the rings are ~1.3° apart, so a ball must span several of them: 25 cm.
+DEPTH_RADIUS, LIDAR_RADIUS = 0.05, 0.25
+#: ... and beyond 8 m the LiDAR ball grows with range, to 0.03 × the range (`NormalEstimator.range_scale`): windows
+#: then span about three beams of a 32-beam scanner at any range, and more of denser ones (docs/RESULTS.md, "LiDAR
+#: neighbourhoods").
+LIDAR_RANGE_SCALE = 0.03
+#: Fewer neighbours than this inside the ball gives a NaN row (PCL's convention: a plane needs three points).
+MIN_NEIGHBOURS = 3
+#: Hybrid sends a point to the network when a quadric explains its neighbourhood better than the PCA plane by more than
+#: this F statistic (about 1 on a flat surface at any noise level) ...
+HYBRID_GATE = 10.0
+#: ... and departs from the plane by more than this RMS height, in units of the radius (a systematic millimetre of
+#: waviness in a 5 cm ball is significant but harmless). Both chosen in docs/RESULTS.md (`docs/tools/gate_study.py`).
+HYBRID_BEND = 0.03
+#: On an organized cloud hybrid's survey is the integral-image window (core/integral.py), and its gate reads the
+#: window's parts (`MomentImage.structure`) instead of a quadric over a pool: the network answers where a part's
+#: centroid sits off the survey's plane by more than sqrt(gate) standard errors (`survey.window_z`) and by more than
+#: bend radii. Chosen in docs/RESULTS.md (docs/tools/window_gate_study.py and lattice_study.py, on seeds eval does not
+#: score).
+#: Neighbour searches: 'kdtree' (CPU), 'grid' (organized clouds only; falls back to the KD-tree), 'voxel' (sorted cell
+#: lists on the device, any cloud), 'window' (organized clouds, pca only: integral-image windows, O(1) per pixel; falls
+#: back like 'grid'), 'auto' (the window for whole-ball pca on an organized cloud; otherwise on CUDA the grid for
+#: organized clouds, else voxel; the KD-tree on a CPU).
+NEIGHBOUR_SEARCHES = ("auto", "kdtree", "grid", "voxel", "window")
+#: PCA's neighbour cap when no k is given: large enough to be the whole ball for typical depth-camera radii.
+PCA_DEFAULT_K = 500
+
+
+def checkpoint_conventions() -> dict[str, float | int]:
+    """What a checkpoint records, and what loading compares against."""
+    return {"pool_factor": POOL_FACTOR, "radius_fraction": RADIUS_FRACTION}
+
+
+def bbox_diagonal(points: np.ndarray) -> float:
+    """Length of the axis-aligned bounding-box diagonal of the finite points (0 for fewer than two)."""
+    points = np.asarray(points)
+    finite = points[np.isfinite(points).all(axis=1)]
+    if len(finite) < 2:
+        return 0.0
+    return float(np.linalg.norm(finite.max(axis=0) - finite.min(axis=0)))

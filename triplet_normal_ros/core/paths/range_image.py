@@ -1,0 +1,156 @@
+"""The range-image path, top to bottom: an organized range image's windows (`range_image.image`), their PCA or
+hybrid's survey, the fit to the slope, the gate, the network on a lattice of the gated pixels, and pools for the
+points the windows cannot answer.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from ..config.plan import Plan
+from ..pca.frames import surface_variation
+from ..range_image import lattice
+from ..range_image.image import MomentImage
+from ..range_image.image_numba import CompiledImage
+from ..range_image.lattice import agreed, plan_lattice
+from ..range_image.survey import PART_SPAN, opens, survey_and_cue, survey_on_slope
+from ..search.pools import PoolSearch, ScanLines, open_search
+from .call import CHUNK, Call, Cloud, finish
+from .pools import hybrid_kernel, learned_kernel, over_pools
+
+
+def range_image_path(
+    call: Call, plan: Plan, cloud: Cloud, query: np.ndarray, progress: Callable[[int], None] | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The windows of an organized range image (compiled or torch, by `plan.engine`), then their PCA (pca) or hybrid's
+    survey, gate, lattice and pools."""
+    stage = "pca" if plan.kernel == "pca" else "survey"
+    image_type = CompiledImage if plan.engine == "compiled" else MomentImage
+    with call.timed(stage):
+        image = image_type(cloud.tensor, cloud.shape, cloud.pitch)
+    if plan.kernel == "pca":
+        with call.timed(stage):
+            return window_pca(call, image, query, progress)
+    lines = ScanLines(cloud.shape, call.device)
+
+    def open_pools() -> PoolSearch:
+        return open_search(plan.search, cloud.points, cloud.tensor, cloud.shape, cloud.pitch, call.device)
+
+    return window_hybrid(call, image, cloud.tensor, query, open_pools, lines, progress)
+
+
+def window_pca(call: Call, image: MomentImage, query: np.ndarray, progress) -> tuple[np.ndarray, np.ndarray]:
+    """PCA of every pixel's window at once (`range_image.image`), then the query's rows."""
+    s = call.settings
+    fit = image.pca(s.radius, s.range_scale)
+    finite = image.finite.reshape(-1)
+    whole = len(query) == len(finite) and bool(query[0] == 0) and bool((np.diff(query) == 1).all())
+    call.run.estimated = int(finite.sum()) if whole else int(finite[torch.from_numpy(query)].sum())
+    if image.compiled:
+        normals, curvature = image.finish()
+    else:
+        normals, curvature = finish(fit.normal, surface_variation(fit.eigvals), fit.valid & finite)
+    if progress is not None:
+        progress(len(query))
+    return (normals, curvature) if whole else (normals[query], curvature[query])
+
+
+def window_hybrid(
+    call: Call,
+    image: MomentImage,
+    cloud: torch.Tensor,
+    query: np.ndarray,
+    open_pools: Callable[[], PoolSearch],
+    lines: ScanLines,
+    progress: Callable[[int], None] | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Hybrid on an organized range image: the window survey everywhere (its ray-noise plane normal from the window
+    fitted to the slope, and PCL curvature), then pools (`open_pools()`, opened only when some point needs one) and the
+    network only where the parts of the first window or of the fitted one sit off its plane (`structure`,
+    `survey_on_slope`), on a lattice of those points (`lattice_network`).
+
+    A window less than PART_SPAN pixels across on either axis (a spinning LiDAR's beams at range, a sliver beside
+    an edge) cannot be cut into parts, so the cue is blind there; nor is a window that walls cut below three
+    points a fit. Those points take the pool path's own hybrid (pool PCA, the quadric gate, the network where it
+    opens), as they would without a grid, and the pool's curvature; where the pool determines no plane (one
+    LiDAR ring in the ball) a thin window that does keeps its own answer."""
+    s = call.settings
+    with call.timed("survey"):
+        fit = image.pca(s.radius, s.range_scale)
+        first, cue = survey_and_cue(image, fit)
+        survey, fitted = survey_on_slope(image, fit, first, cue)
+        finite = image.finite.reshape(-1)
+        valid = fit.valid & finite
+        top, bottom, left, right = fit.box
+        narrow = (bottom - top < PART_SPAN - 1) | (right - left < PART_SPAN - 1)
+        thin = finite & (narrow | ~fit.valid)  # a window that walls cut below 3 points may still hold a ball
+        structured = opens(cue, s.gate, s.bend) | opens(fitted, s.gate, s.bend)
+        gated = valid & ~thin & structured
+        normals, curvature = finish(survey, surface_variation(fit.eigvals), valid)
+        normals, curvature = normals[query], curvature[query]
+        network_rows = np.flatnonzero(gated.cpu().numpy()[query])
+        pooled = np.flatnonzero(thin.cpu().numpy()[query])
+    call.run.estimated = int(finite.cpu().numpy()[query].sum())
+    if progress is not None:
+        progress(len(query) - len(network_rows) - len(pooled))
+    if len(network_rows) + len(pooled) == 0:
+        return normals, curvature
+    with call.timed("neighbours"):
+        search = open_pools()
+    if len(network_rows):
+        pixels = query[network_rows]
+        answer = lattice_network(call, search, cloud, gated.cpu().numpy(), image.width, pixels, lines)
+        answered = np.isfinite(answer).all(axis=1)
+        normals[network_rows[answered]] = answer[answered]
+        if progress is not None:
+            progress(len(network_rows))
+    for out, answer, pool_curvature in over_pools(call, search, cloud, query, pooled, hybrid_kernel, CHUNK, lines):
+        answered = np.isfinite(answer).all(axis=1)
+        normals[out[answered]] = answer[answered]
+        curvature[out[answered]] = pool_curvature[answered]  # a thin window's curvature is a sliver's
+        if progress is not None:
+            progress(len(out))
+    return normals, curvature
+
+
+def lattice_network(
+    call: Call,
+    search: PoolSearch,
+    cloud: torch.Tensor,
+    gated: np.ndarray,
+    width: int,
+    pixels: np.ndarray,
+    lines: ScanLines,
+    levels: tuple[tuple[int, float], ...] | None = None,
+) -> np.ndarray:
+    """(M, 3) float32 answers for the gated `pixels` of an image `width` pixels wide: the network on a lattice of the
+    gated pixels, the mean of a pixel's lattice neighbours where they agree, and the network on the pixel's own pool
+    where they do not (`lattice.py`); NaN where the network gives none. The lattice pixels' own answers come the same
+    way from the next, coarser level of `levels` (default `lattice.levels()`), the coarsest level's from the network."""
+    levels = lattice.levels() if levels is None else levels
+    if not levels:
+        return _network(call, search, cloud, pixels, lines)
+    (stride, degrees), coarser = levels[0], levels[1:]
+    plan = plan_lattice(gated, (len(gated) // width, width), pixels, stride)
+    answers = lattice_network(call, search, cloud, gated, width, plan.run, lines, coarser)
+    with call.timed("lattice"):
+        chosen = agreed(torch.from_numpy(answers), torch.from_numpy(plan.candidates), degrees)
+        chosen = chosen.numpy().astype(np.float32)
+        own = np.isin(pixels, plan.run)
+        chosen[own] = answers[np.searchsorted(plan.run, pixels[own])]
+    alone = np.flatnonzero(~own & ~np.isfinite(chosen).all(axis=1))
+    if len(alone):
+        chosen[alone] = _network(call, search, cloud, pixels[alone], lines)
+    return chosen
+
+
+def _network(call: Call, search: PoolSearch, cloud: torch.Tensor, pixels: np.ndarray, lines: ScanLines) -> np.ndarray:
+    """(len(pixels), 3) float32: the network's answer at each pixel over its pool, NaN where it gives none."""
+    out = np.full((len(pixels), 3), np.nan, dtype=np.float32)
+    every = np.arange(len(pixels))
+    for rows, answer, _ in over_pools(call, search, cloud, pixels, every, learned_kernel, CHUNK, lines):
+        out[rows] = answer
+    return out

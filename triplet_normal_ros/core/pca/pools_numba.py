@@ -1,0 +1,104 @@
+"""Pool PCA (`pools.pool_normals`, `pca`'s pools) on a CPU, compiled: one loop per pool instead of a few dozen torch
+passes.
+
+The covariance of the offsets from the query point, the closed-form eigen-decomposition of
+`eigen_numba.smallest_eigenvector` (`eigen.smallest_eigenvector`'s), and LAPACK's eigh where the two smallest
+eigenvalues nearly coincide (`eigen.EIGEN_GAP`), as the torch code does. Over the KD-tree's pools (`tree_normals`)
+the search and the sums are one loop per point, and the pools are never stored. The torch code stays the reference
+(its docstrings say why each step is what it is); test/core/test_fused_pools.py compares the two pool by pool. The
+pools run in bands on `bands.bands`'s threads.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..bands import bands
+from ..search.kdtree_numba import KDTree, _nearest_one, scratch_for
+from .eigen_numba import add_moments, moments_pca
+
+_MASK32 = 0xFFFFFFFF
+
+
+def pool_normals(
+    cloud: np.ndarray, pool: np.ndarray, rows: np.ndarray, gap: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`pools.pool_normals` of the -1 padded `pool` (M, P) around the cloud points `rows` (M,): unit normals
+    (M, 3), ascending eigenvalues (M, 3) and validity (M,); eigh where the two smallest eigenvalues lie within `gap`
+    of the trace."""
+    m = len(pool)
+    normal, eigvals, valid = np.empty((m, 3)), np.empty((m, 3)), np.zeros(m, dtype=np.bool_)
+    bands(
+        _pool_pca, m, np.ascontiguousarray(cloud, dtype=np.float64), np.ascontiguousarray(pool, dtype=np.int64),
+        np.ascontiguousarray(rows, dtype=np.int64), float(gap), normal, eigvals, valid, pieces=4,
+    )  # fmt: skip
+    return normal, eigvals, valid
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _pool_pca(cloud, pool, rows, gap, normal, eigvals, valid, lo, hi):
+    cov = np.empty((3, 3))
+    sums = np.empty(10)
+    for b in range(lo, hi):
+        centre = rows[b]
+        sums[:] = 0.0
+        for j in range(pool.shape[1]):
+            idx = pool[b, j]
+            if idx >= 0:
+                x, y, z = (
+                    cloud[idx, 0] - cloud[centre, 0],
+                    cloud[idx, 1] - cloud[centre, 1],
+                    cloud[idx, 2] - cloud[centre, 2],
+                )
+                add_moments(sums, x, y, z)
+        valid[b] = moments_pca(sums, gap, cov, eigvals[b], normal[b])
+
+
+def tree_normals(
+    tree: KDTree, centres: np.ndarray, rows: np.ndarray | None, radius: float, k: int, gap: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`pool_normals` of the nearest `k` points inside the ball around each centre, searched and summed in one loop
+    per point (`KDTree.nearest`'s search; `rows` as there): the pools are never stored, and their points are summed
+    while the search has them in cache."""
+    m = len(centres)
+    normal, eigvals, valid = np.full((m, 3), np.nan), np.full((m, 3), np.nan), np.zeros(m, dtype=np.bool_)
+    if tree.size and m and k > 0:
+        coordinates, at, which = tree.in_leaf_order(centres, rows)
+        bands(
+            _tree_pca, m, tree.points, tree.ids, tree.span, tree.box, tree.depth, coordinates, at, which,
+            float(radius) ** 2, int(k), float(gap), normal, eigvals, valid, pieces=4,
+        )  # fmt: skip
+    return normal, eigvals, valid
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _tree_pca(pts, ids, span, box, depth, centres, at, which, r2, k, gap, normal, eigvals, valid, lo, hi):
+    """`_pool_pca` of each query's nearest k (`kdtree._nearest_one`), its moments summed from the tree's own points
+    while the search has them in cache, for the queries at[lo:hi] into the rows which[lo:hi]."""
+    scratch = scratch_for(k)
+    cov = np.empty((3, 3))
+    sums = np.empty(10)
+    for j in range(lo, hi):
+        c, q = at[j], which[j]
+        x, y, z = centres[c, 0], centres[c, 1], centres[c, 2]
+        count = _nearest_one(pts, ids, span, box, depth, x, y, z, r2, k, scratch)
+        if count == 0:
+            continue
+        sums[:] = 0.0
+        for a in range(count):
+            t = scratch.best_pos[a]
+            add_moments(sums, pts[t, 0] - x, pts[t, 1] - y, pts[t, 2] - z)
+        valid[q] = moments_pca(sums, gap, cov, eigvals[q], normal[q])
+
+
+def warm() -> None:
+    """Compile (or load from the cache) the kernels on a few tiny pools, so that no
+    cloud waits for it: the node's start-up probe calls this whatever its method."""
+    v, u = np.mgrid[0:4, 0:4].astype(np.float64)
+    cloud = np.stack((u, v, np.ones_like(u) + 0.1 * u * v), axis=-1).reshape(-1, 3)
+    pool = np.arange(16, dtype=np.int64).reshape(2, 8)
+    pool_normals(cloud, pool, np.arange(2), 1e-3)
+    tree_normals(KDTree(cloud), cloud[:2], np.arange(2), 3.0, 8, 1e-3)
+
+

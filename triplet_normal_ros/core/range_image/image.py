@@ -1,0 +1,355 @@
+"""PCA of organized clouds in O(1) per pixel: summed-area tables of the first and second moments.
+
+A depth image or a LiDAR range image keeps its points in sensor order, so a metric ball around a pixel is, to first
+order, a pixel window whose half-widths are the ball's angular radius (r / range) over the image's angular spacing per
+axis. Summed-area tables (integral images) of 1, x, y, z and the six products give any window's count, mean and
+covariance in a few dozen operations, whatever its size, and a closed-form 3×3 eigensolver gives the normal: PCL's
+IntegralImageNormalEstimation (COVARIANCE_MATRIX mode), in torch so a GPU runs the same code. Hybrid's survey
+reads the same tables (`survey.py`).
+
+Windows never cross a depth discontinuity. Between two valid pixels of a row (or column) whose ranges jump by more
+than the jump threshold, across any holes between them, stands a wall; each pixel takes the largest window (scaled
+down from the full one) that no wall crosses, and where that is smaller than the full window, also tries one-sided
+windows (halves and quarters) and keeps the fullest. PCL shrinks a centred window to the distance to the nearest edge,
+which leaves the pixels beside an edge with almost no neighbours; the one-sided windows keep them a full half or quarter
+of the ball on their own surface.
+
+Everything runs in float64: window covariances are differences of sums over up to hundreds of thousands of pixels, and
+the coordinates are first centred on the cloud's mean so the cancellation costs only a few digits.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from ..config.conventions import MIN_NEIGHBOURS
+from ..pca.eigen import smallest_eigenvector
+from ..pca.frames import spans_plane
+
+#: A square window of half-width h covers the area of a disc of radius h × 2 / sqrt(pi); windows are sized to the
+#: ball's disc by area, so a plane gets about as many points as the ball would give it.
+AREA_MATCH = math.sqrt(math.pi) / 2
+#: Two adjacent pixels belong to different surfaces when their ranges differ by more than this fraction of the radius
+#: (a ball around one holds no point of the other) ...
+JUMP_RADIUS_FRACTION = 1.0
+#: ... or, when larger, by more than this fraction of the range (twice PCL's default depth-change factor), which keeps
+#: the range noise of a far surface (centimetres at 4 m for a Kinect) from reading as walls. Measured on simulated
+#: depth frames of seeds eval does not score: 0.02 shrank most far windows to a few pixels (MSAE 0.141 against 0.055).
+JUMP_RANGE_FRACTION = 0.04
+#: ... or, larger still, by more than a surface seen this obliquely (tan 85°) moves in range between two adjacent rays
+#: of the axis: a spinning LiDAR's beams lie a degree apart, so the ground a few metres out steps in range by a tenth
+#: of it from one beam to the next and is still one surface. A depth camera's rays lie 1.6 mrad apart: 0.018 of the
+#: range, under JUMP_RANGE_FRACTION, so its walls stand where they did.
+GRAZING_TAN = math.tan(math.radians(85.0))
+#: How many steps a window shrinks in while a wall crosses it (a binary search over these levels).
+SHRINK_LEVELS = 16
+#: The one-sided windows a pixel beside a wall also tries, as (up, down, left, right) reach: four half windows, then
+#: four quarter windows for the corners of a silhouette.
+ONE_SIDED = (
+    (1, 0, 1, 1), (0, 1, 1, 1), (1, 1, 1, 0), (1, 1, 0, 1),
+    (1, 0, 1, 0), (1, 0, 0, 1), (0, 1, 1, 0), (0, 1, 0, 1),
+)  # fmt: skip
+_TINY = torch.finfo(torch.float64).tiny
+#: Channels of the summed-area table: count, x, y, z, xx, xy, xz, yy, yz, zz.
+_CHANNELS = 10
+
+
+@dataclass(frozen=True)
+class WindowPCA:
+    """Per pixel (flattened, H·W): the normal (smallest principal axis), ascending eigenvalues, window count, and
+    whether the window determines a plane: at least MIN_NEIGHBOURS valid points, spread over more than one image row
+    and column (one row of a range image is one scan line: collinear, whatever its noise says) and in two directions
+    (`frames.spans_plane`). Rows that are not `valid` carry garbage."""
+
+    normal: torch.Tensor  # (N, 3) float64
+    eigvals: torch.Tensor  # (N, 3) float64, ascending
+    count: torch.Tensor  # (N,) float64
+    valid: torch.Tensor  # (N,) bool
+    reach: torch.Tensor | float  # the ball radius the window stands for: the radius, or per pixel (N,) with range_scale
+    mean: torch.Tensor  # (N, 3) float64: the window's centroid (cloud coordinates)
+    cov: torch.Tensor  # (N, 6) float64: the covariance's upper triangle (a00, a01, a02, a11, a12, a22)
+    box: tuple[torch.Tensor, ...]  # (top, bottom, left, right) (N,) each: the window each pixel used
+
+
+class MomentImage:
+    """Summed-area tables of an organized cloud's moments, and the windows each pixel may use.
+
+    `cloud` (H·W, 3) on the device, NaN where there is no point; `shape` = (H, W); `pitch` the angular spacing of
+    each pixel row and column, measured from the data (`check.inspect_grid`, which also decides whether the cloud
+    is a range image at all), so depth cameras of any intrinsics and range images of any LiDAR work without
+    calibration.
+    """
+
+    #: Whether `image_numba.CompiledImage` computes the windows (it has this interface and the same answers).
+    compiled = False
+
+    def __init__(self, cloud: torch.Tensor, shape: tuple[int, int], pitch: tuple[torch.Tensor, torch.Tensor]) -> None:
+        self.height, self.width = shape
+        self.device = cloud.device
+        points = cloud.to(torch.float64).view(self.height, self.width, 3)
+        self.finite = torch.isfinite(points).all(dim=-1)
+        self.pitch_row, self.pitch_col = pitch
+        self.range = torch.where(self.finite, points.norm(dim=-1), torch.nan)
+        self.rays = points / self.range.unsqueeze(-1)  # unit rays, NaN at holes
+        self.offset = points[self.finite].mean(dim=0) if bool(self.finite.any()) else points.new_zeros(3)
+        self.points = torch.where(self.finite.unsqueeze(-1), points - self.offset, 0.0)
+        self.table = _summed_area(self._moments())
+        self.counts = self.table[..., :1].contiguous()
+        self.first = self.table[..., :4].contiguous()  # count and sums of x, y, z: what a part's centroid needs
+
+    def _moments(self) -> torch.Tensor:
+        x, y, z = self.points.unbind(dim=-1)
+        one = self.finite.to(torch.float64)
+        return torch.stack((one, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z), dim=-1)
+
+    def pca(self, radius: float, range_scale: float = 0.0) -> WindowPCA:
+        """Window PCA of every pixel at the metric `radius`, with windows that cross no depth discontinuity; with a
+        `range_scale` > 0 each pixel's ball grows to max(radius, range_scale × its range) (a spinning LiDAR's rings
+        part with range)."""
+        reach = float(radius) if range_scale == 0 else (self.range * range_scale).clamp_min(radius)
+        half_row, half_col = self._half_widths(reach)
+        walls = _WallTable(self.range, *self._jump_thresholds(reach))
+        flat = reach if isinstance(reach, float) else torch.nan_to_num(reach.reshape(-1), nan=radius)
+        self._sizing = (half_row, half_col, walls, flat)
+        return self._fit(half_row, half_col, walls, flat)
+
+    def pca_on_slope(self, normal: torch.Tensor) -> WindowPCA:
+        """After `pca`: every pixel's window again, with half-widths fitted to the slope of the plane `normal` (N, 3),
+        zero where there is none (`on_slope`); the walls and the ball's reach are `pca`'s."""
+        half_row, half_col, walls, flat = self._sizing
+        rows, cols = on_slope(half_row, half_col, normal.view(self.height, self.width, 3), self.rays)
+        return self._fit(rows, cols, walls, flat)
+
+    def _fit(self, half_row: torch.Tensor, half_col: torch.Tensor, walls: _WallTable, reach) -> WindowPCA:
+        """Window PCA at these half-widths: the largest clear boxes, one-sided where a wall cut them."""
+        box = _largest_clear_boxes(half_row, half_col, walls, self.height, self.width)
+        box = _one_sided_where_shrunk(box, half_row, half_col, walls, self.counts, self.height, self.width)
+        sums = box_sums(self.table, *box)
+        return _window_pca(sums, self.offset, box, reach, self._spans_lines(box, sums[:, 0]))
+
+    def _spans_lines(self, box: tuple[torch.Tensor, ...], count: torch.Tensor) -> torch.Tensor:
+        """Whether each window's points lie on more than one image row and more than one column. A window holds its
+        own pixel, so its points lie on one row only if they all lie on the pixel's row: two box lookups in the
+        count table tell, one for the window's part of that row and one for its part of that column."""
+        top, bottom, left, right = box
+        row, col = _pixel_grid(self.height, self.width, self.device)
+        on_row = box_sums(self.counts, row, row, left, right)[:, 0]
+        on_col = box_sums(self.counts, top, bottom, col, col)[:, 0]
+        return (on_row < count) & (on_col < count)
+
+    def _jump_thresholds(self, reach: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
+        """The range step that makes a wall between adjacent pixels along a row (between columns) and along a column
+        (between rows): the ball's reach, JUMP_RANGE_FRACTION of the range, or a grazing surface's step, the largest."""
+        floor = torch.as_tensor(reach, dtype=torch.float64, device=self.device) * JUMP_RADIUS_FRACTION
+        thresholds = []
+        for pitch in (self.pitch_col.view(1, -1), self.pitch_row.view(-1, 1)):
+            fraction = (GRAZING_TAN * pitch.to(torch.float64)).clamp_min(JUMP_RANGE_FRACTION)
+            thresholds.append(torch.maximum(self.range * fraction, floor))
+        return thresholds[0], thresholds[1]
+
+    def _half_widths(self, reach: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
+        """Half-widths in pixels per axis: the ball's angular radius over each axis' angular step (0 for holes)."""
+        angle = torch.asin((reach / self.range).clamp(max=1.0)) * AREA_MATCH
+        per_row = self.pitch_row.to(angle.dtype).view(-1, 1)
+        per_col = self.pitch_col.to(angle.dtype).view(1, -1)
+        rows = torch.nan_to_num(torch.round(angle / per_row), nan=0.0).clamp(0, float(self.height))
+        cols = torch.nan_to_num(torch.round(angle / per_col), nan=0.0).clamp(0, float(self.width))
+        return rows.to(torch.int64), cols.to(torch.int64)
+
+
+def on_slope(half_row: torch.Tensor, half_col: torch.Tensor, normal: torch.Tensor, rays: torch.Tensor):
+    """(H, W) half-widths that cover the ball on the surface of the plane `normal` (H, W, 3), not in the image plane.
+
+    A window sized from the range covers the ball's angular radius. On a surface seen obliquely along an image axis,
+    one pixel step along that axis spans 1 / cos(incidence along the axis) times as much surface, so the window
+    reaches that much past the ball, across a fold where the range is continuous: a tread meeting its riser, a floor
+    meeting a box. Each axis' half-width is divided by that stretch (`_stretch`), rounded half to even, but never
+    below one pixel (a window must span two scan lines); a zero normal keeps the half-width.
+    """
+    halves = []
+    for half, dim in ((half_row, 0), (half_col, 1)):
+        stretch = _stretch(normal, rays, _ray_turn(rays, dim))
+        shrunk = torch.round(half.to(torch.float64) / stretch).to(torch.int64)
+        halves.append(torch.maximum(shrunk, half.clamp_max(1)))
+    return halves[0], halves[1]
+
+
+def _ray_turn(rays: torch.Tensor, dim: int) -> torch.Tensor:
+    """(H, W, 3) how each pixel's ray turns along image axis `dim`: the next pixel's ray minus the previous one's, the
+    pixel's own ray standing in for a neighbour that is a hole or off the image; zero where that leaves a NaN."""
+    size = rays.shape[dim]
+    index = torch.arange(size, device=rays.device).view((-1, 1, 1) if dim == 0 else (1, -1, 1))
+    ahead, behind = torch.roll(rays, -1, dims=dim), torch.roll(rays, 1, dims=dim)
+    ahead = torch.where(torch.isfinite(ahead) & (index < size - 1), ahead, rays)
+    behind = torch.where(torch.isfinite(behind) & (index > 0), behind, rays)
+    return torch.nan_to_num(ahead - behind, nan=0.0)
+
+
+def _stretch(normal: torch.Tensor, rays: torch.Tensor, turn: torch.Tensor) -> torch.Tensor:
+    """(H, W) surface spanned per pixel step along the axis, over that of a surface facing the ray: sqrt(1 + tan²),
+    tan = |n·t| / |n·d| with d the ray and t the turn made perpendicular to it and unit, at most GRAZING_TAN; 1 where
+    the turn is zero."""
+    d = torch.nan_to_num(rays, nan=0.0)
+    dx, dy, dz = d.unbind(dim=-1)
+    tx, ty, tz = turn.unbind(dim=-1)
+    nx, ny, nz = normal.unbind(dim=-1)
+    along_ray = tx * dx + ty * dy + tz * dz
+    tx, ty, tz = tx - dx * along_ray, ty - dy * along_ray, tz - dz * along_ray
+    length = torch.sqrt(tx * tx + ty * ty + tz * tz)
+    across = (nx * tx + ny * ty + nz * tz).abs() / length.clamp_min(_TINY)
+    facing = (nx * dx + ny * dy + nz * dz).abs().clamp_min(_TINY)
+    tangent = torch.where(length > 0, (across / facing).clamp_max(GRAZING_TAN), 0.0)
+    return torch.sqrt(1.0 + tangent * tangent)
+
+
+def _summed_area(channels: torch.Tensor) -> torch.Tensor:
+    """(H, W, C) -> (H+1, W+1, C) inclusive prefix sums with a zero first row and column, channels last so that one
+    box corner's channels are one contiguous read."""
+    h, w, c = channels.shape
+    table = channels.new_zeros((h + 1, w + 1, c))
+    torch.cumsum(channels, dim=0, out=table[1:, 1:])
+    table[1:, 1:].copy_(table[1:, 1:].cumsum(dim=1))
+    return table
+
+
+def box_sums(table: torch.Tensor, top: torch.Tensor, bottom: torch.Tensor, left: torch.Tensor, right: torch.Tensor):
+    """Sums of every channel over the inclusive boxes [top, bottom] × [left, right], one per row: (M, C)."""
+    width = table.shape[1]
+    flat = table.view(-1, table.shape[2])
+    below, after = (bottom + 1) * width, right + 1
+    above = top * width
+    return flat[below + after] - flat[above + after] - flat[below + left] + flat[above + left]
+
+
+class _WallTable:
+    """Where the surface jumps in range along a row or a column: vertical walls (between columns) and horizontal walls
+    (between rows), as summed-area tables, so whether a box is crossed by any wall is O(1).
+
+    Each valid pixel is compared with the next valid pixel along the axis, across any run of holes between them (a
+    depth camera's shadow beside a foreground edge is such a run), and the wall stands right after the first one, so a
+    window may reach into the holes on its own side but not through them to the other surface.
+    """
+
+    def __init__(self, ranges: torch.Tensor, along_row: torch.Tensor, along_col: torch.Tensor) -> None:
+        self.cols = _summed_area(_jumps(ranges, along_row).unsqueeze(-1))  # (H+1, W, 1): walls after column c
+        self.rows = _summed_area(_jumps(ranges.T, along_col.T).T.unsqueeze(-1))  # (H, W+1, 1): walls after row r
+
+    def crossed(self, top, bottom, left, right) -> torch.Tensor:
+        """Whether any wall lies strictly inside each box (walls on its border separate it from the outside)."""
+        last_col, last_row = self.cols.shape[1] - 2, self.rows.shape[0] - 2  # the last wall index on each axis
+        wide, tall = right > left, bottom > top
+        lo_c = left.clamp(0, max(last_col, 0))
+        hi_c = torch.maximum((right - 1).clamp(0, max(last_col, 0)), lo_c)
+        lo_r = top.clamp(0, max(last_row, 0))
+        hi_r = torch.maximum((bottom - 1).clamp(0, max(last_row, 0)), lo_r)
+        inner_cols = box_sums(self.cols, top, bottom, lo_c, hi_c)[:, 0] * wide
+        inner_rows = box_sums(self.rows, lo_r, hi_r, left, right)[:, 0] * tall
+        return (inner_cols + inner_rows) > 0.5
+
+
+def _jumps(ranges: torch.Tensor, threshold: torch.Tensor) -> torch.Tensor:
+    """(H, W-1) float: 1 between columns c and c+1 where the valid pixel at c and the next valid pixel of its row (at
+    c+1 or beyond a run of holes) differ in range by more than either one's threshold."""
+    height, width = ranges.shape
+    finite = torch.isfinite(ranges)
+    index = torch.arange(width, device=ranges.device).expand(height, width)
+    at_or_after = torch.where(finite, index, width).flip(1).cummin(dim=1).values.flip(1)
+    following = torch.cat((at_or_after[:, 1:], at_or_after.new_full((height, 1), width)), dim=1)
+    has_next = finite & (following < width)
+    nxt = following.clamp_max(width - 1)
+    other, other_threshold = ranges.gather(1, nxt), threshold.gather(1, nxt)
+    jump = has_next & ((ranges - other).abs() > torch.maximum(threshold, other_threshold))
+    return jump[:, :-1].to(torch.float64)
+
+
+def _pixel_grid(height: int, width: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    rows = torch.arange(height, device=device).view(-1, 1).expand(height, width).reshape(-1)
+    cols = torch.arange(width, device=device).view(1, -1).expand(height, width).reshape(-1)
+    return rows, cols
+
+
+def _clip(row, col, up, down, left, right, height: int, width: int):
+    return (
+        (row - up).clamp_min(0),
+        (row + down).clamp_max(height - 1),
+        (col - left).clamp_min(0),
+        (col + right).clamp_max(width - 1),
+    )
+
+
+def _box_at(row, col, half_row, half_col, sides, level, height: int, width: int):
+    """The box (top, bottom, left, right) of each pixel at a shrink `level`; `sides` = (up, down, left, right)
+    multipliers (0 or 1) make it centred or one-sided."""
+    up, down, left, right = sides
+    hr = torch.div(half_row * level + SHRINK_LEVELS // 2, SHRINK_LEVELS, rounding_mode="floor")
+    hc = torch.div(half_col * level + SHRINK_LEVELS // 2, SHRINK_LEVELS, rounding_mode="floor")
+    return _clip(row, col, hr * up, hr * down, hc * left, hc * right, height, width)
+
+
+def _largest_clear(row, col, half_row, half_col, sides, walls: _WallTable, height: int, width: int):
+    """Per pixel, the box at the largest level in [0, SHRINK_LEVELS] that no wall crosses (level 0: the pixel alone),
+    and that level. Only the pixels whose full box is crossed pay for the binary search."""
+    level = torch.full_like(row, SHRINK_LEVELS)
+    crossed = torch.nonzero(walls.crossed(*_box_at(row, col, half_row, half_col, sides, level, height, width)))
+    todo = crossed.squeeze(1)
+    if len(todo):
+        args = (row[todo], col[todo], half_row[todo], half_col[todo], sides)
+        lo, hi = torch.zeros_like(todo), torch.full_like(todo, SHRINK_LEVELS)
+        # Invariant: the box at lo is clear (level 0 always is), the box at hi is crossed.
+        while bool((open_ := hi - lo > 1).any()):
+            mid = torch.div(lo + hi, 2, rounding_mode="floor")
+            ok = ~walls.crossed(*_box_at(*args, mid, height, width))
+            lo = torch.where(open_ & ok, mid, lo)
+            hi = torch.where(open_ & ~ok, mid, hi)
+        level[todo] = lo
+    return _box_at(row, col, half_row, half_col, sides, level, height, width), level
+
+
+def _largest_clear_boxes(half_row, half_col, walls: _WallTable, height: int, width: int):
+    """The centred box of each pixel, shrunk until no wall crosses it, and its level."""
+    row, col = _pixel_grid(height, width, half_row.device)
+    return _largest_clear(row, col, half_row.reshape(-1), half_col.reshape(-1), (1, 1, 1, 1), walls, height, width)
+
+
+def _one_sided_where_shrunk(box, half_row, half_col, walls: _WallTable, counts, height: int, width: int):
+    """Where a wall cut the centred box to less than half its reach, the fullest of it and the one-sided halves (each
+    shrunk likewise), and where every half was cut too (a silhouette's corner), the quarters as well."""
+    best, level = box
+    best = [b.clone() for b in best]
+    todo = torch.nonzero(level < SHRINK_LEVELS // 2).squeeze(1)
+    row, col = _pixel_grid(height, width, half_row.device)
+    for sides in (ONE_SIDED[:4], ONE_SIDED[4:]):
+        if len(todo) == 0:
+            break
+        args = (row[todo], col[todo], half_row.reshape(-1)[todo], half_col.reshape(-1)[todo])
+        tried = [_largest_clear(*args, side, walls, height, width) for side in sides]
+        candidates = [tuple(b[todo] for b in best)] + [box for box, _ in tried]
+        filled = torch.stack([box_sums(counts, *c)[:, 0] for c in candidates])
+        choice = filled.argmax(dim=0)
+        for i, side in enumerate(zip(*candidates, strict=True)):
+            best[i][todo] = torch.stack(side).gather(0, choice.unsqueeze(0)).squeeze(0)
+        cut = torch.stack([lvl for _, lvl in tried]).amax(dim=0) < SHRINK_LEVELS // 2
+        todo = todo[cut]
+    return tuple(best)
+
+
+def _window_pca(
+    sums: torch.Tensor,
+    offset: torch.Tensor,
+    box: tuple[torch.Tensor, ...],
+    reach: torch.Tensor | float,
+    lines: torch.Tensor,
+) -> WindowPCA:
+    """Mean, covariance and its closed-form eigen-decomposition from the moment sums (M, _CHANNELS) of each window."""
+    count = sums[:, 0]
+    moments = sums[:, 1:] / count.clamp_min(1.0).unsqueeze(-1)
+    mean, second = moments[:, :3], moments[:, 3:]
+    mx, my, mz = mean.unbind(dim=-1)
+    outer = torch.stack((mx * mx, mx * my, mx * mz, my * my, my * mz, mz * mz), dim=-1)
+    cov = second - outer
+    eigvals, normal = smallest_eigenvector(cov)
+    valid = (count >= MIN_NEIGHBOURS) & torch.isfinite(normal).all(dim=-1) & lines & spans_plane(eigvals)
+    return WindowPCA(normal, eigvals, count, valid, reach, mean + offset, cov, box)

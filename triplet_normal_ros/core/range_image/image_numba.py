@@ -1,0 +1,533 @@
+"""The integral-image window PCA of `image.py`, compiled: one pass per pixel instead of a few dozen torch passes.
+
+`CompiledImage` is `image.MomentImage` computed here: a CPU runs it, a GPU the torch code (`Plan.engine`); both compute
+the same windows and the same closed-form eigen-decomposition, in the same order, so their answers agree to float64
+roundoff (test/core/test_fused.py compares them pixel by pixel). The torch code stays the reference: the docstrings
+there say why each rule is what it is; here are the loops.
+
+The per-pixel stages (window size from the range, walls from the range jumps, the largest clear window with its
+one-sided alternatives, the box sums, the eigen-decomposition and the validity tests) run in one numba loop per pixel.
+Each kernel takes a band of rows (or columns) and releases the GIL, and `bands.bands` runs the bands on as many
+Python threads as torch uses (that module says why not numba's own parallel layers).
+Division follows numpy (`error_model="numpy"`: a point at the origin divides by a zero range into inf, as torch does,
+instead of raising). Compiled code is cached on disk (numba's `cache=True`), so only the first process after an
+install pays the compile (6-20 s here), and it pays it at start-up: the node's throughput probe calls `warm`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from numba import njit
+
+from ..bands import bands
+from ..config.conventions import MIN_NEIGHBOURS
+from ..pca.eigen_numba import add_moments, smallest_eigenvector
+from ..pca.frames import COLLINEAR_RATIO
+from .check_numba import warm_grid
+from .image import (
+    AREA_MATCH,
+    GRAZING_TAN,
+    JUMP_RADIUS_FRACTION,
+    JUMP_RANGE_FRACTION,
+    ONE_SIDED,
+    SHRINK_LEVELS,
+    WindowPCA,
+)
+
+_TINY = np.finfo(np.float64).tiny
+#: The `slope` argument of `_pixels` that sizes windows from the range alone.
+_NO_SLOPE = np.zeros((0, 3))
+_NO_CHANGE = np.zeros(0, dtype=np.bool_)
+#: (up, down, left, right) of the four half windows, then the four quarter windows.
+_SIDES = np.array(ONE_SIDED, dtype=np.int64)
+
+
+class CompiledImage:
+    """`image.MomentImage` computed by these kernels: the same interface (`finite`, `pca`, and after `pca` the
+    `table`, `first`, `counts` and `offset` hybrid's cue reads) and the same answers; the tables are built in `pca`."""
+
+    compiled = True
+
+    def __init__(self, cloud: torch.Tensor, shape: tuple[int, int], pitch: tuple[torch.Tensor, torch.Tensor]) -> None:
+        self.height, self.width = shape
+        self.device = cloud.device
+        self.points = cloud.to(torch.float64).view(self.height, self.width, 3)
+        self.pitch_row, self.pitch_col = pitch
+        self.fit: dict[str, np.ndarray] = {}
+
+    def pca(self, radius: float, range_scale: float = 0.0) -> WindowPCA:
+        """`MomentImage.pca`; the raw arrays stay in `fit` for `survey`."""
+        out = window_pca(
+            self.points.numpy(), self.pitch_row.numpy(), self.pitch_col.numpy(), float(radius), float(range_scale)
+        )
+        self.fit = out
+        self._radius, self._scaled = float(radius), range_scale != 0
+        self.table = torch.from_numpy(out["table"])
+        self.offset = torch.from_numpy(out["offset"])
+        t = {name: torch.from_numpy(out[name]) for name in ("normal", "eigvals", "count", "valid", "mean", "cov")}
+        box = tuple(torch.from_numpy(out["box"][i]) for i in range(4))
+        reach = float(radius) if range_scale == 0 else torch.from_numpy(out["reach"])
+        return WindowPCA(t["normal"], t["eigvals"], t["count"], t["valid"], reach, t["mean"], t["cov"], box)
+
+    @property
+    def finite(self) -> torch.Tensor:
+        """(H, W) bool: pixels with a point. After `pca`, read off its ranges (NaN exactly where a coordinate is not
+        finite) instead of another pass over the points."""
+        if self.fit:
+            return torch.from_numpy(~np.isnan(self.fit["ranges"]))
+        return torch.isfinite(self.points).all(dim=-1)
+
+    @property
+    def counts(self) -> torch.Tensor:
+        """The count channel of the moment table (`MomentImage.counts`), copied out only when asked for."""
+        return self.table[..., :1].contiguous()
+
+    @property
+    def first(self) -> torch.Tensor:
+        """The count and first-moment channels (`MomentImage.first`), copied out only when asked for."""
+        return self.table[..., :4].contiguous()
+
+    def finish(self) -> tuple[np.ndarray, np.ndarray]:
+        """`call.finish` of `pca`'s windows and their surface variation (`frames.surface_variation`) in one
+        compiled pass: unit float32 normals and curvature, NaN where the window is not valid or the pixel a hole."""
+        n = len(self.fit["count"])
+        normals, curvature = np.empty((n, 3), dtype=np.float32), np.empty(n, dtype=np.float32)
+        finite = ~np.isnan(self.fit["ranges"]).reshape(-1)
+        bands(_finish, n, self.fit["normal"], self.fit["eigvals"], self.fit["valid"], finite, normals, curvature)
+        return normals, curvature
+
+    def pca_on_slope(self, normal: torch.Tensor) -> WindowPCA:
+        """`MomentImage.pca_on_slope`, after `pca`."""
+        out = window_pca_on_slope(
+            self.points.numpy(), self.fit, self.pitch_row.numpy(), self.pitch_col.numpy(), self._radius,
+            normal.numpy(),
+        )  # fmt: skip
+        self.slope_fit = out
+        t = {name: torch.from_numpy(out[name]) for name in ("normal", "eigvals", "count", "valid", "mean", "cov")}
+        box = tuple(torch.from_numpy(out["box"][i]) for i in range(4))
+        reach = self._radius if not self._scaled else torch.from_numpy(out["reach"])
+        return WindowPCA(t["normal"], t["eigvals"], t["count"], t["valid"], reach, t["mean"], t["cov"], box)
+
+
+def warm() -> CompiledImage:
+    """Compile (or load from the cache) every kernel on a small synthetic range image, so that no cloud waits for it:
+    the node's start-up probe calls this whatever its method, and a reload to another method finds them ready. The
+    image, fitted, for the survey's kernels to warm on."""
+    grid = warm_grid()
+    pitch = [np.full(12, 0.1, dtype=np.float32), np.full(16, 0.1, dtype=np.float32)]  # the grid's rays, 0.1 rad apart
+    image = CompiledImage(torch.from_numpy(grid.reshape(-1, 3)), grid.shape[:2], tuple(map(torch.from_numpy, pitch)))
+    image.pca(0.3, 0.1)
+    image.finish()
+    window_pca_on_slope(grid, image.fit, pitch[0], pitch[1], 0.3, np.nan_to_num(image.fit["normal"]))
+    return image
+
+
+def window_pca(
+    points: np.ndarray, pitch_row: np.ndarray, pitch_col: np.ndarray, radius: float, range_scale: float
+) -> dict[str, np.ndarray]:
+    """Window PCA of every pixel of an (H, W, 3) organized cloud (NaN holes) with the per-row and per-column ray
+    pitch: the moment table and offset `MomentImage` keeps, and the `WindowPCA` fields, as numpy arrays."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    height, width = points.shape[:2]
+    ranges, sums = np.empty((height, width)), np.zeros((height, 4))
+    bands(_ranges, height, points, ranges, sums)
+    total = sums.sum(axis=0)
+    offset = total[:3] / total[3] if total[3] else np.zeros(3)
+    table = np.zeros((height + 1, width + 1, 10))
+    bands(_moments_down, width, points, ranges, offset, table)
+    bands(_sum_across, height, table)
+    reach = np.full((height, width), float(radius)) if range_scale == 0 else np.maximum(ranges * range_scale, radius)
+    rows = np.ascontiguousarray(pitch_row, dtype=np.float64)
+    cols = np.ascontiguousarray(pitch_col, dtype=np.float64)
+    along_row, along_col = np.empty((height, width)), np.empty((height, width))
+    bands(_thresholds, height, ranges, reach, rows, cols, along_row, along_col)
+    col_jumps, row_jumps = np.zeros((height, max(width - 1, 0), 1)), np.zeros((max(height - 1, 0), width, 1))
+    bands(_row_jumps, height, ranges, along_row, col_jumps)
+    bands(_row_jumps, width, ranges.T, along_col.T, row_jumps.transpose(1, 0, 2))  # down the columns
+    col_walls, row_walls = _summed_area(col_jumps)[..., 0], _summed_area(row_jumps)[..., 0]
+    n = height * width
+    fit = _empty_fit(n)
+    bands(
+        _pixels, height, table, points, ranges, reach, rows, cols, col_walls, row_walls, float(radius),
+        _NO_SLOPE, _NO_CHANGE,
+        *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
+        pieces=4,
+    )  # fmt: skip
+    fit["mean"] += offset
+    sizing = {"ranges": ranges, "reach_grid": reach, "col_walls": col_walls, "row_walls": row_walls}
+    return {"table": table, "offset": offset, **fit, **sizing}
+
+
+def window_pca_on_slope(
+    points: np.ndarray,
+    out: dict[str, np.ndarray],
+    pitch_row: np.ndarray,
+    pitch_col: np.ndarray,
+    radius: float,
+    slope: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """`window_pca`'s windows again, with half-widths fitted to the slope of the plane `slope` (H·W, 3; zero where
+    there is none), reusing `out`'s tables, walls and reach (`image.MomentImage.pca_on_slope`)."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    height, width = points.shape[:2]
+    n = height * width
+    fit, changed = _empty_fit(n), np.zeros(n, dtype=np.bool_)
+    bands(
+        _pixels, height, out["table"], points, out["ranges"], out["reach_grid"],
+        np.ascontiguousarray(pitch_row, dtype=np.float64), np.ascontiguousarray(pitch_col, dtype=np.float64),
+        out["col_walls"], out["row_walls"], float(radius), np.ascontiguousarray(slope, dtype=np.float64), changed,
+        *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
+        pieces=4,
+    )  # fmt: skip
+    names = ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")
+    bands(
+        _keep_first, n, changed, out["offset"], *(out[name] for name in names), *(fit[name] for name in names), pieces=4
+    )
+    return fit
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _keep_first(
+    changed, offset, normal, eigvals, count, valid, mean, cov, box, reach,
+    new_normal, new_eigvals, new_count, new_valid, new_mean, new_cov, new_box, new_reach, lo, hi,
+):  # fmt: skip
+    """The second fit's rows lo..hi finished: the first fit's where the window did not change, else the offset added
+    to the new mean; one pass over the eight arrays rather than a boolean-mask copy of each."""
+    for i in range(lo, hi):
+        if changed[i]:
+            for k in range(3):
+                new_mean[i, k] += offset[k]
+            continue
+        for k in range(3):
+            new_normal[i, k], new_eigvals[i, k], new_mean[i, k] = normal[i, k], eigvals[i, k], mean[i, k]
+        for k in range(6):
+            new_cov[i, k] = cov[i, k]
+        for k in range(4):
+            new_box[k, i] = box[k, i]
+        new_count[i], new_valid[i], new_reach[i] = count[i], valid[i], reach[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _finish(normal, eigvals, valid, finite, normals, curvature, lo, hi):
+    for i in range(lo, hi):
+        if not (valid[i] and finite[i]):
+            normals[i, 0] = normals[i, 1] = normals[i, 2] = curvature[i] = np.nan
+            continue
+        x, y, z = normal[i, 0], normal[i, 1], normal[i, 2]
+        length = max(math.sqrt(x * x + y * y + z * z), 1e-12)
+        normals[i, 0], normals[i, 1], normals[i, 2] = x / length, y / length, z / length
+        total = eigvals[i, 0] + eigvals[i, 1] + eigvals[i, 2]
+        curvature[i] = eigvals[i, 0] / max(total, _TINY) if total > 0 else 0.0
+
+
+def _empty_fit(n: int) -> dict[str, np.ndarray]:
+    """The `WindowPCA` fields of n pixels as numpy arrays for `_pixels` to fill."""
+    return {
+        "normal": np.empty((n, 3)), "eigvals": np.empty((n, 3)), "count": np.empty(n),
+        "valid": np.zeros(n, dtype=np.bool_), "mean": np.empty((n, 3)), "cov": np.empty((n, 6)),
+        "box": np.empty((4, n), dtype=np.int64), "reach": np.empty(n),
+    }  # fmt: skip
+
+
+def _summed_area(channels: np.ndarray) -> np.ndarray:
+    """(h, w, C) -> (h + 1, w + 1, C) inclusive prefix sums with a zero first row and column, summed down the columns
+    first and along the rows second, as `image._summed_area` sums them."""
+    h, w, k = channels.shape
+    table = np.zeros((h + 1, w + 1, k))
+    bands(_sum_down, w, channels, table)
+    bands(_sum_across, h, table)
+    return table
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _ranges(points, ranges, sums, lo, hi):
+    """Each pixel's range, NaN at holes, and each row's sums of x, y, z and its count of finite points."""
+    for r in range(lo, hi):
+        for c in range(points.shape[1]):
+            x, y, z = points[r, c, 0], points[r, c, 1], points[r, c, 2]
+            if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
+                ranges[r, c] = math.sqrt(x * x + y * y + z * z)
+                sums[r, 0] += x
+                sums[r, 1] += y
+                sums[r, 2] += z
+                sums[r, 3] += 1.0
+            else:
+                ranges[r, c] = np.nan
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _moments_down(points, ranges, offset, table, lo, hi):
+    """The first pass of the moment table, down columns lo..hi: running sums of 1, x, y, z, xx, xy, xz, yy, yz, zz of
+    each finite pixel's point minus `offset` (holes add nothing). It walks the rows in memory order, each row's band
+    from the one above, so each column's sums are added in the same order as a walk down it, without its stride."""
+    for r in range(points.shape[0]):
+        for c in range(lo, hi):
+            row = table[r + 1, c + 1]
+            row[:] = table[r, c + 1]
+            if np.isfinite(ranges[r, c]):
+                x, y, z = points[r, c, 0] - offset[0], points[r, c, 1] - offset[1], points[r, c, 2] - offset[2]
+                add_moments(row, x, y, z)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _sum_down(channels, table, lo, hi):
+    for c in range(lo, hi):
+        for j in range(channels.shape[2]):
+            running = 0.0
+            for r in range(channels.shape[0]):
+                running += channels[r, c, j]
+                table[r + 1, c + 1, j] = running
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _sum_across(table, lo, hi):
+    for r in range(lo, hi):
+        for j in range(table.shape[2]):
+            running = 0.0
+            for c in range(table.shape[1] - 1):
+                running += table[r + 1, c + 1, j]
+                table[r + 1, c + 1, j] = running
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _thresholds(ranges, reach, pitch_row, pitch_col, along_row, along_col, lo, hi):
+    """The range step that makes a wall along a row (between columns) and along a column (between rows)."""
+    for r in range(lo, hi):
+        by_row = max(GRAZING_TAN * pitch_row[r], JUMP_RANGE_FRACTION)
+        for c in range(ranges.shape[1]):
+            floor = reach[r, c] * JUMP_RADIUS_FRACTION
+            by_col = max(GRAZING_TAN * pitch_col[c], JUMP_RANGE_FRACTION)
+            along_row[r, c] = _nan_max(ranges[r, c] * by_col, floor)
+            along_col[r, c] = _nan_max(ranges[r, c] * by_row, floor)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _row_jumps(ranges, threshold, out, lo, hi):
+    """out[r, c] = 1 where the valid pixel at column c and the next valid pixel of its row (at c + 1 or beyond a run
+    of holes) differ in range by more than either one's threshold (`image._jumps`). Given the transposed views, the
+    same walk runs down the columns."""
+    width = ranges.shape[1]
+    for r in range(lo, hi):
+        following = -1
+        for c in range(width - 1, -1, -1):
+            if np.isfinite(ranges[r, c]):
+                if following >= 0 and abs(ranges[r, c] - ranges[r, following]) > max(
+                    threshold[r, c], threshold[r, following]
+                ):
+                    out[r, c, 0] = 1.0
+                following = c
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _nan_max(a, b):
+    """torch.maximum: NaN when either is NaN."""
+    if np.isnan(a) or np.isnan(b):
+        return np.nan
+    return max(a, b)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _box(table, top, bottom, left, right, k):
+    """Channel k's sum over the inclusive box, from a 3-D summed-area table."""
+    return table[bottom + 1, right + 1, k] - table[top, right + 1, k] - table[bottom + 1, left, k] + table[top, left, k]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _box2(table, top, bottom, left, right):
+    """The sum over the inclusive box, from a 2-D summed-area table."""
+    return table[bottom + 1, right + 1] - table[top, right + 1] - table[bottom + 1, left] + table[top, left]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _crossed(col_walls, row_walls, top, bottom, left, right):
+    """Whether a wall lies strictly inside the box (`image._WallTable.crossed`)."""
+    last_col = max(col_walls.shape[1] - 2, 0)
+    last_row = max(row_walls.shape[0] - 2, 0)
+    inner = 0.0
+    if right > left:
+        lo = min(max(left, 0), last_col)
+        hi = max(min(max(right - 1, 0), last_col), lo)
+        inner += _box2(col_walls, top, bottom, lo, hi)
+    if bottom > top:
+        lo = min(max(top, 0), last_row)
+        hi = max(min(max(bottom - 1, 0), last_row), lo)
+        inner += _box2(row_walls, lo, hi, left, right)
+    return inner > 0.5
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _box_at(r, c, half_row, half_col, up, down, left, right, level, height, width):
+    hr = (half_row * level + SHRINK_LEVELS // 2) // SHRINK_LEVELS
+    hc = (half_col * level + SHRINK_LEVELS // 2) // SHRINK_LEVELS
+    return max(r - hr * up, 0), min(r + hr * down, height - 1), max(c - hc * left, 0), min(c + hc * right, width - 1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _largest_clear(r, c, half_row, half_col, up, down, left, right, col_walls, row_walls, height, width):
+    """The box at the largest shrink level no wall crosses, and that level (a binary search, as `_largest_clear`)."""
+    top, bottom, lft, rgt = _box_at(r, c, half_row, half_col, up, down, left, right, SHRINK_LEVELS, height, width)
+    if not _crossed(col_walls, row_walls, top, bottom, lft, rgt):
+        return top, bottom, lft, rgt, SHRINK_LEVELS
+    lo, hi = 0, SHRINK_LEVELS
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        top, bottom, lft, rgt = _box_at(r, c, half_row, half_col, up, down, left, right, mid, height, width)
+        if _crossed(col_walls, row_walls, top, bottom, lft, rgt):
+            hi = mid
+        else:
+            lo = mid
+    top, bottom, lft, rgt = _box_at(r, c, half_row, half_col, up, down, left, right, lo, height, width)
+    return top, bottom, lft, rgt, lo
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width):
+    """The pixel's window: the largest clear centred box, and where a wall cut it below half its reach, the fullest
+    of it and the one-sided halves, then (where every half was cut too) the quarters (`_one_sided_where_shrunk`)."""
+    top, bottom, left, right, level = _largest_clear(
+        r, c, half_row, half_col, 1, 1, 1, 1, col_walls, row_walls, height, width
+    )
+    if level >= SHRINK_LEVELS // 2:
+        return top, bottom, left, right
+    for first in (0, 4):
+        best = _box(table, top, bottom, left, right, 0)
+        widest = 0
+        for s in range(first, first + 4):
+            t, b, lf, rt, lvl = _largest_clear(
+                r, c, half_row, half_col, _SIDES[s, 0], _SIDES[s, 1], _SIDES[s, 2], _SIDES[s, 3],
+                col_walls, row_walls, height, width,
+            )  # fmt: skip
+            widest = max(widest, lvl)
+            filled = _box(table, t, b, lf, rt, 0)
+            if filled > best:
+                best, top, bottom, left, right = filled, t, b, lf, rt
+        if widest >= SHRINK_LEVELS // 2:
+            break
+    return top, bottom, left, right
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _pixels(
+    table, points, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, radius, slope, changed,
+    normal, eigvals, count, valid, mean, cov, box, flat_reach, lo, hi,
+):  # fmt: skip
+    """Each pixel's window, its moments, PCA and validity (`MomentImage.pca` and `image._window_pca`); with a
+    `slope` (H·W, 3) rather than an empty one, each axis' half-width is first divided by the stretch of that plane along
+    it (`MomentImage.pca_on_slope`), and only the pixels whose window that changes are fitted and marked in `changed`:
+    the others' windows, and so their fits, are the first pass's."""
+    width = ranges.shape[1]
+    for r in range(lo, hi):
+        for c in range(width):
+            i = r * width + c
+            half_row, half_col = _halves(ranges, reach, pitch_row, pitch_col, r, c)
+            if slope.shape[0]:
+                sx, sy, sz = slope[i, 0], slope[i, 1], slope[i, 2]
+                if sx == 0.0 and sy == 0.0 and sz == 0.0:
+                    continue  # no plane: the first window stands (`changed` stays False)
+                rows = _on_slope(half_row, _stretch(points, ranges, r, c, 1, 0, sx, sy, sz))
+                cols = _on_slope(half_col, _stretch(points, ranges, r, c, 0, 1, sx, sy, sz))
+                if rows == half_row and cols == half_col:
+                    continue
+                changed[i] = True
+                half_row, half_col = rows, cols
+            flat_reach[i] = radius if np.isnan(reach[r, c]) else reach[r, c]
+            _fit_pixel(
+                table, col_walls, row_walls, r, c, half_row, half_col, normal, eigvals, count, valid, mean, cov, box
+            )
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _halves(ranges, reach, pitch_row, pitch_col, r, c):
+    """The window's half-widths in pixels per axis from the ball's angular radius (`MomentImage._half_widths`)."""
+    height, width = ranges.shape
+    angle = math.asin(min(reach[r, c] / ranges[r, c], 1.0)) * AREA_MATCH
+    half_row = min(max(_round_or_zero(angle / pitch_row[r]), 0.0), float(height))
+    half_col = min(max(_round_or_zero(angle / pitch_col[c]), 0.0), float(width))
+    return np.int64(half_row), np.int64(half_col)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _on_slope(half, stretch):
+    """The half-width divided by the stretch, rounded half to even, at least one pixel (or the half-width if less)."""
+    return max(np.int64(np.round(half / stretch)), min(half, 1))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _ray(points, ranges, r, c, k):
+    """Component k of pixel (r, c)'s unit ray, NaN at a hole (`MomentImage.rays`)."""
+    return points[r, c, k] / ranges[r, c]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _turn(points, ranges, r, c, dr, dc, k):
+    """Component k of `image._ray_turn` at (r, c) along the axis stepping (dr, dc)."""
+    height, width = ranges.shape
+    own = _ray(points, ranges, r, c, k)
+    ahead = _ray(points, ranges, r + dr, c + dc, k) if r + dr < height and c + dc < width else np.nan
+    behind = _ray(points, ranges, r - dr, c - dc, k) if r - dr >= 0 and c - dc >= 0 else np.nan
+    step = (ahead if np.isfinite(ahead) else own) - (behind if np.isfinite(behind) else own)
+    return 0.0 if np.isnan(step) else step
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _stretch(points, ranges, r, c, dr, dc, nx, ny, nz):
+    """`image._stretch` of one pixel along the axis stepping (dr, dc)."""
+    ux, uy, uz = (
+        _turn(points, ranges, r, c, dr, dc, 0),
+        _turn(points, ranges, r, c, dr, dc, 1),
+        _turn(points, ranges, r, c, dr, dc, 2),
+    )
+    dx, dy, dz = _ray(points, ranges, r, c, 0), _ray(points, ranges, r, c, 1), _ray(points, ranges, r, c, 2)
+    dx, dy, dz = (0.0 if np.isnan(dx) else dx), (0.0 if np.isnan(dy) else dy), (0.0 if np.isnan(dz) else dz)
+    along_ray = ux * dx + uy * dy + uz * dz
+    tx, ty, tz = ux - dx * along_ray, uy - dy * along_ray, uz - dz * along_ray
+    length = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if not length > 0:
+        return 1.0
+    across = abs(nx * tx + ny * ty + nz * tz) / max(length, _TINY)
+    facing = max(abs(nx * dx + ny * dy + nz * dz), _TINY)
+    tangent = min(across / facing, GRAZING_TAN)
+    return math.sqrt(1.0 + tangent * tangent)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _fit_pixel(table, col_walls, row_walls, r, c, half_row, half_col, normal, eigvals, count, valid, mean, cov, box):
+    """One pixel's window at these half-widths, its moments, PCA and validity, into row r·W + c of the outputs."""
+    height, width = table.shape[0] - 1, table.shape[1] - 1
+    i = r * width + c
+    top, bottom, left, right = _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width)
+    box[0, i], box[1, i], box[2, i], box[3, i] = top, bottom, left, right
+    k = _box(table, top, bottom, left, right, 0)
+    count[i] = k
+    scale = 1.0 / max(k, 1.0)
+    mx = _box(table, top, bottom, left, right, 1) * scale
+    my = _box(table, top, bottom, left, right, 2) * scale
+    mz = _box(table, top, bottom, left, right, 3) * scale
+    mean[i, 0], mean[i, 1], mean[i, 2] = mx, my, mz
+    cov[i, 0] = _box(table, top, bottom, left, right, 4) * scale - mx * mx
+    cov[i, 1] = _box(table, top, bottom, left, right, 5) * scale - mx * my
+    cov[i, 2] = _box(table, top, bottom, left, right, 6) * scale - mx * mz
+    cov[i, 3] = _box(table, top, bottom, left, right, 7) * scale - my * my
+    cov[i, 4] = _box(table, top, bottom, left, right, 8) * scale - my * mz
+    cov[i, 5] = _box(table, top, bottom, left, right, 9) * scale - mz * mz
+    smallest_eigenvector(cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5], eigvals[i], normal[i])
+    on_row = _box(table, r, r, left, right, 0)
+    on_col = _box(table, top, bottom, c, c, 0)
+    valid[i] = (
+        k >= MIN_NEIGHBOURS
+        and np.isfinite(normal[i, 0])
+        and on_row < k
+        and on_col < k
+        and eigvals[i, 1] > COLLINEAR_RATIO * eigvals[i, 2]
+    )
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _round_or_zero(x):
+    """torch.round (half to even) with NaN as 0, as `_half_widths` rounds."""
+    return 0.0 if np.isnan(x) else np.round(x)
+
+
