@@ -71,8 +71,11 @@ def cmd_probe(args: argparse.Namespace) -> int:
         return 0
     if not torch.cuda.is_available():
         build = "the CPU build" if torch.version.cuda is None else f"built for CUDA {torch.version.cuda}"
-        print(f"gpu_check: torch {torch.__version__} in this venv ({build}) sees no CUDA device; README, "
-              "'Which torch', says how to install a CUDA build", file=sys.stderr)
+        print(
+            f"gpu_check: torch {torch.__version__} in this venv ({build}) sees no CUDA device; README, "
+            "'Which torch', says how to install a CUDA build",
+            file=sys.stderr,
+        )
         return 1
     print(f"{torch.cuda.get_device_name(0)}, torch {torch.__version__}, CUDA {torch.version.cuda}")
     return 0
@@ -131,8 +134,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 share, worst, mismatch = agreement(ref, normals)
                 close = abs(m_dev - m_cpu) <= MSAE_REL * m_cpu
                 ok = share >= WITHIN_1DEG and mismatch <= NAN_MISMATCH * len(query) and close
-                result = (f"{share:.2%} within 1° of cpu (worst {worst:.2g}°), {mismatch} one-sided NaN, "
-                          f"MSAE {m_cpu:.4f} / {m_dev:.4f} (cpu / device), {searches}")
+                result = (
+                    f"{share:.2%} within 1° of cpu (worst {worst:.2g}°), {mismatch} one-sided NaN, "
+                    f"MSAE {m_cpu:.4f} / {m_dev:.4f} (cpu / device), {searches}"
+                )
             else:
                 ok = m_dev <= GRID_MSAE * m_cpu
                 result = f"MSAE {m_cpu:.4f} / {m_dev:.4f} (cpu / device, ≤ {GRID_MSAE:g} × to pass), {searches}"
@@ -150,8 +155,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
             seconds = statistics.median(runs)
             answered = int(np.isfinite(normals).all(axis=1).sum())
             ok = answered >= 0.9 * len(valid)
-            result = (f"{len(points) / seconds:,.0f} points/s (median of {len(runs)}), "
-                      f"search {estimator.last_run.search}, {answered:,} of {len(valid):,} valid pixels answered")
+            result = (
+                f"{len(points) / seconds:,.0f} points/s (median of {len(runs)}), "
+                f"search {estimator.last_run.search}, {answered:,} of {len(valid):,} valid pixels answered"
+            )
             record(args.results, f"{method}, full {width}x{height} frame", args.device, seconds, result, ok)
         except Exception as error:
             record(args.results, f"{method}, full frame", args.device, None, f"{type(error).__name__}: {error}", False)
@@ -176,8 +183,13 @@ def cmd_node(args: argparse.Namespace) -> int:
     os.environ.update({k: v for k, v in env.items() if k.startswith(("ROS_", "RCUTILS_"))})
     params = {"method": args.method, "radius": RADIUS, "device": args.device, "stats_period": 30.0}
     try:
-        node = start_node(prefix, params_file(out / "node_params.yaml", params, (INPUT,)),
-                          {"input": INPUT, "output": OUTPUT}, log, env)
+        node = start_node(
+            prefix,
+            params_file(out / "node_params.yaml", params, (INPUT,)),
+            {"input": INPUT, "output": OUTPUT},
+            log,
+            env,
+        )
     except SystemExit as error:  # no colcon install
         record(args.results, what, args.device, None, str(error), False)
         return 0
@@ -209,9 +221,11 @@ def cmd_node(args: argparse.Namespace) -> int:
     valid = int(np.isfinite(points).all(axis=1).sum())
     answered = int(np.isfinite(theirs).all(axis=1).sum())
     ok = on_device and share >= 0.99 and mismatch <= NAN_MISMATCH * valid
-    result = (f"publish to answer {statistics.median(trips):.2f} s (median of {len(trips)}; first {trips[0]:.2f} s), "
-              f"{answered:,} of {valid:,} points answered, {share:.2%} within 1° of the estimator in this process, "
-              f"{'log says ' + args.device if on_device else 'log does not name ' + args.device}")
+    result = (
+        f"publish to answer {statistics.median(trips):.2f} s (median of {len(trips)}; first {trips[0]:.2f} s), "
+        f"{answered:,} of {valid:,} points answered, {share:.2%} within 1° of the estimator in this process, "
+        f"{'log says ' + args.device if on_device else 'log does not name ' + args.device}"
+    )
     record(args.results, what, args.device, statistics.median(trips), result, ok)
     return 0
 
@@ -230,8 +244,9 @@ def cmd_bench_row(args: argparse.Namespace) -> int:
 
     block = read_section(args.markdown, "bench") if args.rc == 0 else None
     if block is None:
-        record(args.results, "triplet-normal bench", args.device, args.seconds, f"exit {args.rc} (log: {args.log})",
-               False)
+        record(
+            args.results, "triplet-normal bench", args.device, args.seconds, f"exit {args.rc} (log: {args.log})", False
+        )
         return 0
     found = {}
     for line in block.splitlines():
@@ -240,8 +255,14 @@ def cmd_bench_row(args: argparse.Namespace) -> int:
             found[cells[1]] = (cells[2], cells[11])
     rows = ", ".join(f"{label} {s} s ({search})" for label, (search, s) in found.items())
     ok = len(found) == 3
-    record(args.results, "triplet-normal bench", args.device, args.seconds,
-           f"depth frame, s per cloud: {rows or 'no rows'}; tables in {args.markdown}", ok)
+    record(
+        args.results,
+        "triplet-normal bench",
+        args.device,
+        args.seconds,
+        f"depth frame, s per cloud: {rows or 'no rows'}; tables in {args.markdown}",
+        ok,
+    )
     return 0
 
 
@@ -267,8 +288,14 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     commands = {}
-    for name, function in (("probe", cmd_probe), ("compare", cmd_compare), ("node", cmd_node),
-                           ("record", cmd_record), ("bench-row", cmd_bench_row), ("table", cmd_table)):
+    for name, function in (
+        ("probe", cmd_probe),
+        ("compare", cmd_compare),
+        ("node", cmd_node),
+        ("record", cmd_record),
+        ("bench-row", cmd_bench_row),
+        ("table", cmd_table),
+    ):
         p = sub.add_parser(name)
         p.add_argument("--device", default="cuda", help="cuda (default), cuda:N, or cpu for a dry run")
         p.add_argument("--results", type=Path, default=Path("out/gpu_check/results.jsonl"))

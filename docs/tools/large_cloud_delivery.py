@@ -93,7 +93,9 @@ def role_node() -> None:
     rclpy.init()
     node = rclpy.create_node("large_cloud_node")
     node.create_subscription(
-        PointCloud2, TOPIC, lambda m: print(f"got {m.header.frame_id} {len(m.data)}", flush=True),
+        PointCloud2,
+        TOPIC,
+        lambda m: print(f"got {m.header.frame_id} {len(m.data)}", flush=True),
         qos_profile_sensor_data,
     )
     print("ready", flush=True)

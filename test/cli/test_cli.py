@@ -225,4 +225,3 @@ def test_eval_without_pcpnet_dir_fails_before_working(tmp_path: Path) -> None:
     assert done.returncode == 1
     assert_one_error_line(done.stderr)
     assert not (tmp_path / "R.md").exists()
-

@@ -49,7 +49,11 @@ def test_round_trip_gives_identical_outputs_and_keeps_the_metadata(saved: tuple[
         assert torch.equal(model(x), net(x))
     assert {key: meta[key] for key in META} == META
     assert meta["architecture"] == {
-        "encoder": [16, 32], "regressor": [16], "residual": False, "scales": [], "inlier_seeds": []
+        "encoder": [16, 32],
+        "regressor": [16],
+        "residual": False,
+        "scales": [],
+        "inlier_seeds": [],
     }
     assert meta["format"] == FORMAT and meta["version"]
     assert read_metadata(path) == meta

@@ -72,4 +72,3 @@ def test_a_call_over_the_points_threshold_is_timed_once_on_the_coarse_probe_only
     throughput.measure(estimator, points_dominate_s=float("inf"))  # no call is over this threshold: both probes timed
     fine = int(np.prod(throughput.FINE_PROBE_SHAPE))
     assert calls == [throughput.PROBE_POINTS] * (1 + throughput.TIMED_CALLS) + [fine] * (1 + throughput.TIMED_CALLS)
-

@@ -34,10 +34,14 @@ SETTING_OPTIONS = {
 }
 
 #: What an absent --checkpoint means, for --help: the node's choice.
-SHIPPED_HELP = "default: the node's, the shipped one for the device: " + ", ".join(
-    f"{name} on a {'GPU' if kind == 'cuda' else kind.upper()}" for kind, name in defaults.SHIPPED_FOR_DEVICE.items()
-) + "".join(
-    f" ({name} for a {kind.upper()}'s range images)" for kind, name in defaults.SHIPPED_FOR_RANGE_IMAGES.items()
+SHIPPED_HELP = (
+    "default: the node's, the shipped one for the device: "
+    + ", ".join(
+        f"{name} on a {'GPU' if kind == 'cuda' else kind.upper()}" for kind, name in defaults.SHIPPED_FOR_DEVICE.items()
+    )
+    + "".join(
+        f" ({name} for a {kind.upper()}'s range images)" for kind, name in defaults.SHIPPED_FOR_RANGE_IMAGES.items()
+    )
 )
 
 

@@ -225,4 +225,3 @@ def check_workers(workers: int | None, address: str | None) -> None:
         raise UsageError(f"--workers must be an integer >= 1, got {workers}")
     if address is not None and not address.strip():
         raise UsageError("--address must be HOST:PORT or auto")
-

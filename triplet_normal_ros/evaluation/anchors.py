@@ -148,8 +148,12 @@ def open3d_anchors() -> list[Anchor]:
     ball = _open3d_estimate(o3d, lambda r: o3d.geometry.KDTreeSearchParamRadius(radius=r))
     version = f"Open3D {o3d.__version__}"
     return [
-        Anchor(f"Open3D KNN{OPEN3D_MAX_NN}", knn, version=version,
-               about=f"`estimate_normals(KDTreeSearchParamHybrid(radius, max_nn={OPEN3D_MAX_NN}))`"),
+        Anchor(
+            f"Open3D KNN{OPEN3D_MAX_NN}",
+            knn,
+            version=version,
+            about=f"`estimate_normals(KDTreeSearchParamHybrid(radius, max_nn={OPEN3D_MAX_NN}))`",
+        ),
         Anchor("Open3D radius", ball, version=version, about="`estimate_normals(KDTreeSearchParamRadius(radius))`"),
     ]
 
@@ -183,8 +187,9 @@ def _rgbd_normals_factory(cv2) -> tuple[Callable[[int, int, np.ndarray], object]
         raise ImportError(f"cv2 {cv2.__version__} has no RgbdNormals (it comes with opencv-contrib)")
 
     def create4(rows, cols, k):
-        return rgbd.RgbdNormals_create(rows, cols, cv2.CV_32F, k.astype(np.float32), FALS_WINDOW,
-                                       rgbd.RgbdNormals_RGBD_NORMALS_METHOD_FALS)
+        return rgbd.RgbdNormals_create(
+            rows, cols, cv2.CV_32F, k.astype(np.float32), FALS_WINDOW, rgbd.RgbdNormals_RGBD_NORMALS_METHOD_FALS
+        )
 
     return create4, 3
 
@@ -205,10 +210,19 @@ def opencv_anchors() -> list[Anchor]:
         out = made[height, width].apply(image)
         return np.asarray(out, np.float64).reshape(-1, out.shape[-1])[:, :3]
 
-    about = (f"`RgbdNormals` FALS over {FALS_WINDOW}x{FALS_WINDOW} pixels with the simulated camera's pinhole, "
-             "organized frames only")
-    return [Anchor(f"OpenCV FALS {FALS_WINDOW}x{FALS_WINDOW}", estimate, organized_only=True,
-                   version=f"OpenCV {cv2.__version__}", about=about)]
+    about = (
+        f"`RgbdNormals` FALS over {FALS_WINDOW}x{FALS_WINDOW} pixels with the simulated camera's pinhole, "
+        "organized frames only"
+    )
+    return [
+        Anchor(
+            f"OpenCV FALS {FALS_WINDOW}x{FALS_WINDOW}",
+            estimate,
+            organized_only=True,
+            version=f"OpenCV {cv2.__version__}",
+            about=about,
+        )
+    ]
 
 
 # -- PCL ------------------------------------------------------------------------------------------------------------
@@ -229,16 +243,23 @@ LIBRARIES: tuple[Library, ...] = (
         "Open3D",
         open3d_anchors,
         "pip install open3d-cpu libusb-package",
-        (("libusb", "pip install libusb-package (Open3D needs its libusb-1.0.so as libusb-1.0.so.0, e.g. on "
-                    "LD_LIBRARY_PATH)"),),
+        (
+            (
+                "libusb",
+                "pip install libusb-package (Open3D needs its libusb-1.0.so as libusb-1.0.so.0, e.g. on "
+                "LD_LIBRARY_PATH)",
+            ),
+        ),
     ),
     Library("OpenCV RgbdNormals", opencv_anchors, "pip install opencv-contrib-python-headless"),
     Library(
         "PCL",
         pcl_anchors,
         "apt-get install libpcl-dev",
-        (("not on PATH", "apt-get install g++ pkg-config"),
-         ("did not compile", "its tool did not compile: g++'s log is in ~/.cache/triplet_normal_ros")),
+        (
+            ("not on PATH", "apt-get install g++ pkg-config"),
+            ("did not compile", "its tool did not compile: g++'s log is in ~/.cache/triplet_normal_ros"),
+        ),
     ),
 )
 
@@ -289,8 +310,15 @@ def measure(
     if not runs:
         raise ValueError(f"anchor {anchor.name} reported no timed run")
     picked = normals[query]
-    return AnchorRow(cloud, anchor.name, statistics.median(runs), msae(picked, truth[query]),
-                     invalid_count(picked), len(query), list(runs))
+    return AnchorRow(
+        cloud,
+        anchor.name,
+        statistics.median(runs),
+        msae(picked, truth[query]),
+        invalid_count(picked),
+        len(query),
+        list(runs),
+    )
 
 
 def _wall_times(anchor: Anchor, points: np.ndarray, shape, radius: float, repeats: int) -> list[float]:

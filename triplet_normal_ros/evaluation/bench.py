@@ -145,8 +145,20 @@ def bench_one(
         cloud_s = wall  # the integral image answers every pixel whatever the query: one call costs the whole cloud
     elif info.search == "window":
         cloud_s = _whole_frame_seconds(estimator, points, shape)
-    row = Row(cloud, label, options["method"], info.search, str(estimator.device), len(query), len(valid), wall,
-              cloud_s, timings, share, path=info.plan.steps)
+    row = Row(
+        cloud,
+        label,
+        options["method"],
+        info.search,
+        str(estimator.device),
+        len(query),
+        len(valid),
+        wall,
+        cloud_s,
+        timings,
+        share,
+        path=info.plan.steps,
+    )
     if truth is not None:
         row.msae, row.invalid = msae(normals, truth[query]), invalid_count(normals)
     return row
@@ -233,8 +245,13 @@ def run(
     frame = depth_frame(0)
     torus, torus_normals = torus_sample(n_points)
     clouds = [
-        Cloud("depth frame 640x480", frame.points.reshape(-1, 3).astype(np.float64), frame.points.shape[:2],
-              DEPTH_RADIUS, frame.normals.reshape(-1, 3).astype(np.float64)),
+        Cloud(
+            "depth frame 640x480",
+            frame.points.reshape(-1, 3).astype(np.float64),
+            frame.points.shape[:2],
+            DEPTH_RADIUS,
+            frame.normals.reshape(-1, 3).astype(np.float64),
+        ),
         Cloud(f"torus {n_points:,}", torus, None, RADIUS_FRACTION * bbox_diagonal(torus), torus_normals),
     ]
     found, skipped = outside.available_anchors(libraries) if libraries is not None else ([], [])
@@ -282,10 +299,12 @@ def anchors_markdown(rows: list[Row], anchor_rows: list[outside.AnchorRow], foun
     """The package's methods beside the outside anchors on the same clouds: seconds, ratios, MSAE."""
     entries = []
     for cloud in dict.fromkeys(r.cloud for r in rows):
-        entries += [outside.Entry(r.cloud, r.label, r.cloud_s, r.msae, r.invalid, False) for r in rows
-                    if r.cloud == cloud]
-        entries += [outside.Entry(a.cloud, a.name, a.seconds, a.msae, a.invalid, True) for a in anchor_rows
-                    if a.cloud == cloud]
+        entries += [
+            outside.Entry(r.cloud, r.label, r.cloud_s, r.msae, r.invalid, False) for r in rows if r.cloud == cloud
+        ]
+        entries += [
+            outside.Entry(a.cloud, a.name, a.seconds, a.msae, a.invalid, True) for a in anchor_rows if a.cloud == cloud
+        ]
     versions = ", ".join(dict.fromkeys(a.version for a in found if a.version))
     about = "; ".join(f"{a.name}: {a.about}" for a in found if a.about)
     missing = f" Not importable in this run: {', '.join(s.name for s in skipped)}." if skipped else ""

@@ -89,8 +89,11 @@ def _check_conventions(path: Path, recorded: object) -> None:
     expected = checkpoint_conventions()
     if not isinstance(recorded, dict):
         raise CheckpointError(f"{path} does not record its conventions (pool factor, radius fraction)")
-    changed = [f"{name} {recorded.get(name)!r} (this version uses {value!r})" for name, value in expected.items()
-               if recorded.get(name) != value]
+    changed = [
+        f"{name} {recorded.get(name)!r} (this version uses {value!r})"
+        for name, value in expected.items()
+        if recorded.get(name) != value
+    ]
     if changed:
         raise CheckpointError(f"{path} was trained under other conventions: {', '.join(changed)}")
 

@@ -93,8 +93,9 @@ def _header(path: Path) -> tuple[dict, int]:
     size = path.stat().st_size - 8 - length
     ends = [_entry(path, name, entry, size)[2][1] for name, entry in _entries(header).items()]
     if max(ends, default=0) != size:  # a truncated file, or bytes after the last tensor
-        raise CheckpointError(f"{path} is not a whole safetensors file ({size} data bytes, tensors end at "
-                              f"{max(ends, default=0)})")
+        raise CheckpointError(
+            f"{path} is not a whole safetensors file ({size} data bytes, tensors end at {max(ends, default=0)})"
+        )
     return header, 8 + length
 
 

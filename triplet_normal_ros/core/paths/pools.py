@@ -99,8 +99,16 @@ def learned_kernel(call: Call, cloud, centres, pool, rows, radius) -> tuple[np.n
     """The network everywhere: PCA-aligned patches of each pool, the model's normal back in the world frame."""
     with call.timed("patches"):
         patches = build_patches(
-            cloud, centres, pool, radius, call.k, centre_ids=rows, seed=call.settings.seed, point_ids=call.ids,
-            compiled=call.compiled, **call.fit_options(),
+            cloud,
+            centres,
+            pool,
+            radius,
+            call.k,
+            centre_ids=rows,
+            seed=call.settings.seed,
+            point_ids=call.ids,
+            compiled=call.compiled,
+            **call.fit_options(),
         )
     local = network(call, patches)
     call.run.network += len(centres)

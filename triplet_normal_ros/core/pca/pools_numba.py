@@ -100,5 +100,3 @@ def warm() -> None:
     pool = np.arange(16, dtype=np.int64).reshape(2, 8)
     pool_normals(cloud, pool, np.arange(2), 1e-3)
     tree_normals(KDTree(cloud), cloud[:2], np.arange(2), 3.0, 8, 1e-3)
-
-

@@ -529,5 +529,3 @@ def _fit_pixel(table, col_walls, row_walls, r, c, half_row, half_col, normal, ei
 def _round_or_zero(x):
     """torch.round (half to even) with NaN as 0, as `_half_widths` rounds."""
     return 0.0 if np.isnan(x) else np.round(x)
-
-

@@ -60,9 +60,7 @@ class GridIndex:
         probe_step = torch.ceil(span / probe)
         coarse = _spiral_offsets(probe, rows.device)
         hit = self._sample(rows, coarse, probe_step, radius) >= 0
-        reached = (coarse.abs().unsqueeze(0) * probe_step.unsqueeze(1)).where(
-            hit.unsqueeze(-1), 0
-        ).amax(dim=1)
+        reached = (coarse.abs().unsqueeze(0) * probe_step.unsqueeze(1)).where(hit.unsqueeze(-1), 0).amax(dim=1)
         span = torch.minimum(span, reached + probe_step - 1).clamp_min(1)
         return self._sample(rows, _spiral_offsets(half, rows.device), torch.ceil(span / half), radius)
 
