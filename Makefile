@@ -74,6 +74,7 @@ MIN_PYTHON := 3.10
 lint: venv
 	$(VENV)/bin/ruff check --config .ci/ruff.toml triplet_normal_ros test docs/tools
 	$(VENV)/bin/vermin --no-tips --violations --eval-annotations -t=$(MIN_PYTHON)- triplet_normal_ros launch test docs/tools setup.py
+	$(VENV)/bin/ruff format --check --config .ci/ruff.toml triplet_normal_ros test docs/tools launch setup.py
 
 # `make test` (CI): lint, then every test, including the `slow` ones (colcon builds, the node as a separate process,
 # training runs, accuracy checks of the shipped checkpoint, eval --quick, CLI subprocesses).
