@@ -1,4 +1,4 @@
-"""The compiled scale-head fits (`fused_scales.py`) against their torch reference (`scales.scale_fits`), patch by
+"""The compiled scale-head fits (`scales_numba.py`) against their torch reference (`scales.scale_fits`), patch by
 patch: real Kinect pools, simulated pools beside holes and edges, pools smaller than the
 widest scale and too small for a plane, and equal distances at a scale's boundary."""
 
@@ -26,13 +26,13 @@ def _patches(points: np.ndarray, every: int) -> tuple[torch.Tensor, torch.Tensor
     """Pool offsets in radii, the pool mask and the patch frames of every `every`-th finite point."""
     rows = np.flatnonzero(np.isfinite(points).all(axis=1))[::every]
     pool = NeighbourIndex(points).nearest(points[rows], DEPTH_RADIUS, POOL_FACTOR * K)
-    out = patches_numba.build(points, points[rows], pool, DEPTH_RADIUS, K, rows, 0, None)
+    out = patches_numba.build_patches(points, points[rows], pool, DEPTH_RADIUS, K, rows, 0, None)
     return torch.from_numpy(out["local"]), torch.from_numpy(pool >= 0), torch.from_numpy(out["rotation"])
 
 
 def _compiled(local, mask, rotation, fit_scales, seeds, pool_size) -> scales.ScaleFits:
-    """`fused_scales.fits` of these tensors, as the ScaleFits the torch reference returns."""
-    normals, cues = fused_scales.fits(local.numpy(), mask.numpy(), rotation.numpy(), fit_scales, seeds, pool_size)
+    """`fused_scales.scale_fits` of these tensors, as the ScaleFits the torch reference returns."""
+    normals, cues = fused_scales.scale_fits(local.numpy(), mask.numpy(), rotation.numpy(), fit_scales, seeds, pool_size)
     return scales.ScaleFits(torch.from_numpy(normals), torch.from_numpy(cues))
 
 

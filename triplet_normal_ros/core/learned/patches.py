@@ -90,8 +90,8 @@ def build_patches(
 
 
 def _compiled(cloud, centres, pool, radius, k, centre_ids, seed, scales, inlier_seeds, point_ids, pca) -> Patches:
-    """`build_patches` at inference on a CPU, by `patches_numba.build`."""
-    out = patches_numba.build(
+    """`build_patches` at inference on a CPU, by `patches_numba.build_patches`."""
+    out = patches_numba.build_patches(
         cloud.numpy(), centres.numpy(), pool.numpy(), radius, k, centre_ids.numpy(), seed,
         None if point_ids is None else point_ids.numpy(),
         None if pca is None else tuple(part.to(torch.float64).numpy() for part in pca),
@@ -117,7 +117,7 @@ def _scale_fits(local, mask, rotation, scales, seeds, k: int, compiled: bool) ->
     `compiled` (the same fits to float32 roundoff), else by that torch code."""
     if not compiled:
         return scale_fits(local, mask, rotation, scales, seeds, POOL_FACTOR * k)
-    normals, cues = scales_numba.fits(
+    normals, cues = scales_numba.scale_fits(
         local.detach().numpy(), mask.numpy(), rotation.detach().numpy(), scales, seeds, POOL_FACTOR * k
     )
     return ScaleFits(torch.from_numpy(normals), torch.from_numpy(cues))

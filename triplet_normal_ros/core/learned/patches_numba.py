@@ -14,7 +14,7 @@ from ..config.conventions import MIN_NEIGHBOURS
 _MASK32 = 0xFFFFFFFF
 
 
-def build(
+def build_patches(
     cloud: np.ndarray, centres: np.ndarray, pool: np.ndarray, radius: float, k: int, ids: np.ndarray, seed: int,
     point_ids: np.ndarray | None, pca: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:  # fmt: skip
@@ -165,5 +165,5 @@ def warm() -> None:
     v, u = np.mgrid[0:4, 0:4].astype(np.float64)
     cloud = np.stack((u, v, np.ones_like(u) + 0.1 * u * v), axis=-1).reshape(-1, 3)
     pool = np.arange(16, dtype=np.int64).reshape(2, 8)
-    out = build(cloud, cloud[:2], pool, 3.0, 4, np.arange(2), 0, None)
-    build(cloud, cloud[:2], pool, 3.0, 4, np.arange(2), 0, np.arange(16), (out["eigvals"], out["rotation"]))
+    out = build_patches(cloud, cloud[:2], pool, 3.0, 4, np.arange(2), 0, None)
+    build_patches(cloud, cloud[:2], pool, 3.0, 4, np.arange(2), 0, np.arange(16), (out["eigvals"], out["rotation"]))

@@ -25,7 +25,7 @@ from ..pca.eigen_numba import add_moments, moments_pca
 from .scales import CUES_PER_SCALE, INLIER_BAND, INLIER_SLACK, INLIER_STEPS
 
 
-def fits(
+def scale_fits(
     local: np.ndarray, mask: np.ndarray, rotation: np.ndarray, scales: tuple[int, ...], seeds: tuple[int, ...],
     pool_size: int,
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
@@ -47,7 +47,9 @@ def warm() -> None:
     """Compile (or load from the cache) the kernel on two tiny pools, so that no cloud waits for it."""
     grid = np.mgrid[0:4, 0:4].reshape(2, -1).T / 4.0
     local = np.concatenate((grid, 0.05 * grid[:, :1] * grid[:, 1:]), axis=1)
-    fits(np.stack((local, local[::-1])), np.ones((2, 16), dtype=np.bool_), np.stack((np.eye(3),) * 2), (4, 8), (4,), 16)
+    scale_fits(
+        np.stack((local, local[::-1])), np.ones((2, 16), dtype=np.bool_), np.stack((np.eye(3),) * 2), (4, 8), (4,), 16
+    )
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
