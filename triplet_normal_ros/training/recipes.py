@@ -112,14 +112,18 @@ RECIPES = {
     # 128-point pool) and a 128-wide latent, with lite's training clouds plus 12 depth frames and 12 LiDAR scans. On
     # depth frames it is within a few per cent of lite's error at a fraction of its pools, patches and network; on
     # dense noisy clouds at large radii its small pool loses to lite's (docs/RESULTS.md, "The range checkpoint").
+    # Its loss is the plain squared angle: the relative loss, which discounts patches where PCA is far off, left the
+    # network's edges as blurred as PCA's on range images (docs/RESULTS.md, "The loss decides the edges"). Phase (b)
+    # draws 6000 patches per cloud, twice lite's: on frames eval never scores that cut hybrid's error by a further
+    # 1-3 % on fold and depth frames (docs/RESULTS.md, "The loss decides the edges").
     "range": Recipe(
         residual=True,
-        loss="relative",
+        loss="angle",
         k=32,
         encoder=[32, 64, 128],
         regressor=[64, 32],
         regressor_epochs=30,
-        regressor_patches_per_shape=3000,
+        regressor_patches_per_shape=6000,
         val_patches_per_cloud=300,
         range_frames=12,
     ),
