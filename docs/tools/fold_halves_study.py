@@ -95,7 +95,7 @@ def survey_state(points: np.ndarray, shape: tuple[int, int]):
     gated = opens(cue, gate, bend) | opens(fitted, gate, bend)
     surveyed = valid & ~narrow & ~gated
     side_normal, side_residual = one_sided(image)
-    return survey, fit.eigvals[:, 0], surveyed, side_normal, side_residual
+    return survey, fit.eigvals[:, 0], surveyed, side_normal, side_residual, valid & ~narrow & gated
 
 
 def squared_angles(normals: np.ndarray, exact: np.ndarray) -> np.ndarray:
@@ -134,7 +134,7 @@ def main() -> None:
         segment = index < 3
         points = np.where(frame.valid[..., None], frame.points, np.nan)
         start = time.perf_counter()
-        survey, residual, surveyed, side, side_residual = survey_state(points, frame.points.shape[:2])
+        survey, residual, surveyed, side, side_residual, valid_gated = survey_state(points, frame.points.shape[:2])
         print(f"frame {index}: survey and one-sided windows in {time.perf_counter() - start:.1f} s", flush=True)
         node, _ = hybrid.estimate(frame.points.reshape(-1, 3), shape=frame.points.shape[:2])
         add("survey plane", frame, survey.numpy(), segment)
@@ -151,6 +151,8 @@ def main() -> None:
             add(f"hybrid, one-sided where ratio > {ratio:g}", frame, mixed, segment)
             everywhere = np.where(take.numpy()[:, None], side.numpy(), node)
             add(f"hybrid, one-sided where ratio > {ratio:g}, gated pixels too", frame, everywhere, segment)
+            gated = np.where((take & valid_gated).numpy()[:, None], side.numpy(), node)
+            add(f"hybrid, one-sided where ratio > {ratio:g}, gated pixels only", frame, gated, segment)
     print("| normals | MSAE | near edges | ARI | recovered |")
     print("| --- | ---: | ---: | ---: | ---: |")
     for name, row in rows.items():

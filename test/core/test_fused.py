@@ -23,6 +23,7 @@ from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.range_image.check import range_pitch
 from triplet_normal_ros.core.range_image.image import MomentImage
 from triplet_normal_ros.core.range_image.image_numba import CompiledImage
+from triplet_normal_ros.core.range_image.sides import snap_to_sides
 from triplet_normal_ros.core.range_image.survey import survey_and_cue, survey_on_slope, window_z
 from triplet_normal_ros.evaluation.metrics import msae
 from triplet_normal_ros.io.bags import InputBag, decode_cloud
@@ -248,3 +249,22 @@ def test_the_compiled_pitch_is_the_torch_pitch(name: str) -> None:
                 assert _GridRays(torch.from_numpy(grid)).pitch(axis) is None
             else:
                 torch.testing.assert_close(_GridRays(torch.from_numpy(grid)).pitch(axis), pitch, rtol=1e-6, atol=0)
+
+
+@pytest.mark.parametrize("name", sorted(FRAMES))
+def test_the_compiled_snap_to_sides_is_the_torch_snap(name: str) -> None:
+    """Hybrid's snap of gated answers to their one-sided windows (`sides.snap_to_sides`), compiled and in torch, on
+    every valid pixel with its survey normal tilted 10° as the answer: the same planes chosen, to roundoff, except
+    where a score or an angle lies within roundoff of its threshold (bounded by count)."""
+    images, fits = _fits(name)
+    valid = fits[0].valid & images[0].finite.reshape(-1)
+    pixels = np.flatnonzero(valid.numpy())
+    survey = survey_and_cue(images[0], fits[0])[0][valid]
+    tilt = torch.nn.functional.normalize(survey + 0.18 * torch.roll(survey, 1, dims=1), dim=1)
+    answers = tilt.to(torch.float32).numpy()
+    cloud = torch.from_numpy(FRAMES[name][0]).to(torch.float32)
+    reference, compiled = (snap_to_sides(i, f, cloud, pixels, answers) for i, f in zip(images, fits, strict=True))
+    snapped = ~np.isclose(reference, answers).all(axis=1)
+    assert snapped.mean() > 0.01, "too few pixels snapped to compare the backends"
+    agree = np.abs((reference * compiled).sum(axis=1)) > 1 - 1e-6
+    assert (~agree).sum() <= MAY_DIFFER * len(pixels) + 1, (~agree).sum()

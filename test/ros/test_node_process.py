@@ -210,9 +210,11 @@ def test_learned_method_on_a_small_crop_is_near_its_exact_normals(client: ProbeC
     assert finite.sum() > 1500 and np.isfinite(normals[finite]).all(), "a return got no normal"
     np.testing.assert_allclose(np.linalg.norm(normals[finite], axis=1), 1.0, atol=1e-5)
     assert faces_viewpoint(points[finite], normals[finite]).all()
-    # Measured on a CPU (checkpoint lite, k = 24): 3.22 deg RMS. PCA of the 24 nearest points, a patch a few
-    # millimetres wide in this noise (the node still on pca), is off by 13.4 deg.
-    assert rms_deg(normals[finite], exact[finite]) < 3.7
+    # Measured on a CPU (the range checkpoint, this crop being a range image; k = 24): 4.36 deg RMS, against 3.22
+    # before the range checkpoint took the squared-angle loss, which weighs flat patches less than the relative loss.
+    # PCA of the 24 nearest points, a patch a few millimetres wide in this noise (the node still on pca), is off by
+    # 13.4 deg.
+    assert rms_deg(normals[finite], exact[finite]) < 5.0
 
 
 # -- parameters -----------------------------------------------------------------------------------------------------

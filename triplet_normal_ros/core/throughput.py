@@ -20,7 +20,7 @@ from .config.plan import Plan, compiled
 from .estimator import NormalEstimator
 from .learned import patches_numba, scales_numba
 from .pca import pools_numba
-from .range_image import check_numba, survey_numba
+from .range_image import check_numba, sides_numba, survey_numba
 from .search import kdtree_numba
 
 #: The probe images (height, width): the corner at two resolutions, enough points to time the network, few enough to
@@ -83,7 +83,7 @@ def measure(estimator: NormalEstimator, seed: int = 0, points_dominate_s: float 
     coarse, fine = probe_cloud(estimator.radius, seed), probe_cloud(estimator.radius, seed, FINE_PROBE_SHAPE)
     start = time.perf_counter()
     if compiled(estimator.device.type):  # every compiled kernel, whichever the method: a reload finds them ready
-        for kernels in (check_numba, survey_numba, pools_numba, patches_numba, scales_numba, kdtree_numba):
+        for kernels in (check_numba, survey_numba, sides_numba, pools_numba, patches_numba, scales_numba, kdtree_numba):
             kernels.warm()
     estimator.estimate(coarse, shape=PROBE_SHAPE)  # warm-up: first-call allocations, thread pools
     warm_up = time.perf_counter() - start

@@ -1,6 +1,7 @@
 """The range-image path, top to bottom: an organized range image's windows (`range_image.image`), their PCA or
-hybrid's survey, the fit to the slope, the gate, the network on a lattice of the gated pixels, and pools for the
-points the windows cannot answer.
+hybrid's survey, the fit to the slope, the gate, the network on a lattice of the gated pixels with its answers snapped
+to the one-sided window on each pixel's face (`range_image.sides`), and pools for the points the windows cannot
+answer.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from ..range_image import lattice
 from ..range_image.image import MomentImage
 from ..range_image.image_numba import CompiledImage
 from ..range_image.lattice import agreed, plan_lattice
+from ..range_image.sides import snap_to_sides
 from ..range_image.survey import PART_SPAN, opens, survey_and_cue, survey_on_slope
 from ..search.pools import PoolSearch, ScanLines, open_search
 from .call import CHUNK, Call, Cloud, finish
@@ -70,7 +72,8 @@ def window_hybrid(
     """Hybrid on an organized range image: the window survey everywhere (its ray-noise plane normal from the window
     fitted to the slope, and PCL curvature), then pools (`open_pools()`, opened only when some point needs one) and the
     network only where the parts of the first window or of the fitted one sit off its plane (`structure`,
-    `survey_on_slope`), on a lattice of those points (`lattice_network`).
+    `survey_on_slope`), on a lattice of those points (`lattice_network`), each answer then snapped to the plane of the
+    one-sided window on its own face where one fits far better than the whole window (`sides.snap_to_sides`).
 
     A window less than PART_SPAN pixels across on either axis (a spinning LiDAR's beams at range, a sliver beside
     an edge) cannot be cut into parts, so the cue is blind there; nor is a window that walls cut below three
@@ -103,6 +106,8 @@ def window_hybrid(
     if len(network_rows):
         pixels = query[network_rows]
         answer = lattice_network(call, search, cloud, gated.cpu().numpy(), image.width, pixels, lines)
+        with call.timed("sides"):
+            answer = snap_to_sides(image, fit, cloud, pixels, answer)
         answered = np.isfinite(answer).all(axis=1)
         normals[network_rows[answered]] = answer[answered]
         if progress is not None:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from ..config.conventions import MIN_NEIGHBOURS
@@ -127,18 +128,18 @@ class MomentImage:
         """Window PCA at these half-widths: the largest clear boxes, one-sided where a wall cut them."""
         box = _largest_clear_boxes(half_row, half_col, walls, self.height, self.width)
         box = _one_sided_where_shrunk(box, half_row, half_col, walls, self.counts, self.height, self.width)
-        sums = box_sums(self.table, *box)
-        return _window_pca(sums, self.offset, box, reach, self._spans_lines(box, sums[:, 0]))
-
-    def _spans_lines(self, box: tuple[torch.Tensor, ...], count: torch.Tensor) -> torch.Tensor:
-        """Whether each window's points lie on more than one image row and more than one column. A window holds its
-        own pixel, so its points lie on one row only if they all lie on the pixel's row: two box lookups in the
-        count table tell, one for the window's part of that row and one for its part of that column."""
-        top, bottom, left, right = box
         row, col = _pixel_grid(self.height, self.width, self.device)
-        on_row = box_sums(self.counts, row, row, left, right)[:, 0]
-        on_col = box_sums(self.counts, top, bottom, col, col)[:, 0]
-        return (on_row < count) & (on_col < count)
+        return box_pca(self.table, self.counts, self.offset, box, row, col, reach)
+
+    def one_sided_boxes(self, pixels: np.ndarray) -> torch.Tensor:
+        """After `pca`: (8, 4, M) int64 (top, bottom, left, right) of the four half and four quarter windows
+        (`ONE_SIDED`) of each of the flat `pixels`, each shrunk until no wall crosses it, at `pca`'s half-widths."""
+        half_row, half_col, walls, _ = self._sizing
+        index = torch.from_numpy(pixels).to(self.device)
+        row, col = index // self.width, index % self.width
+        args = (row, col, half_row.reshape(-1)[index], half_col.reshape(-1)[index])
+        boxes = [_largest_clear(*args, sides, walls, self.height, self.width)[0] for sides in ONE_SIDED]
+        return torch.stack([torch.stack(box) for box in boxes])
 
     def _jump_thresholds(self, reach: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
         """The range step that makes a wall between adjacent pixels along a row (between columns) and along a column
@@ -334,6 +335,23 @@ def _one_sided_where_shrunk(box, half_row, half_col, walls: _WallTable, counts, 
         cut = torch.stack([lvl for _, lvl in tried]).amax(dim=0) < SHRINK_LEVELS // 2
         todo = todo[cut]
     return tuple(best)
+
+
+def box_pca(table, counts, offset, box, row, col, reach) -> WindowPCA:
+    """Window PCA of the pixels at (`row`, `col`) over their boxes `box` (top, bottom, left, right), from the moment
+    table and its count channel."""
+    sums = box_sums(table, *box)
+    return _window_pca(sums, offset, box, reach, spans_lines(counts, box, row, col, sums[:, 0]))
+
+
+def spans_lines(counts, box, row, col, count: torch.Tensor) -> torch.Tensor:
+    """Whether each window's points lie on more than one image row and more than one column. A window holds its
+    own pixel, so its points lie on one row only if they all lie on the pixel's row: two box lookups in the
+    count table tell, one for the window's part of that row and one for its part of that column."""
+    top, bottom, left, right = box
+    on_row = box_sums(counts, row, row, left, right)[:, 0]
+    on_col = box_sums(counts, top, bottom, col, col)[:, 0]
+    return (on_row < count) & (on_col < count)
 
 
 def _window_pca(
