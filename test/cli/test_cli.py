@@ -218,6 +218,13 @@ def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
     assert -1.0 <= ari < 1.0  # scattered normals cost segments
     assert "images/segments_fold.png" in segments
     assert (doc.parent / "images" / "segments_fold.png").stat().st_size > 10_000
+    matrix = read_section(doc, "eval-matrix")  # every shipped checkpoint, both methods, against PCA per regime
+    cells = [[c.strip() for c in line.split("|")[1:-1]] for line in matrix.splitlines() if line.startswith("| ")]
+    header, rows = cells[0], {c[0]: c for c in cells[2:]}
+    assert "learned, `lite` (CPU default)" in header and "hybrid, `default` (GPU default)" in header
+    assert "hybrid, `range`" in header and len(header) == 3 + 6
+    assert set(rows) == {"CAD parts, clean", "CAD parts, 0.5 and 1 % noise", "smooth shapes, 0-1 % noise"}
+    assert all(0 < float(ratio) < 10 for row in rows.values() for ratio in row[3:])
 
 
 def test_eval_without_pcpnet_dir_fails_before_working(tmp_path: Path) -> None:

@@ -8,13 +8,15 @@ from ..core.config.conventions import RADIUS_FRACTION
 from ..errors import UsageError
 from . import args as checks
 
-#: eval's data sets, in the order they run: validation shapes, simulated range images, segmentation, PCPNet.
-SETS = ("val", "depth", "fold", "lidar", "segment", "pcpnet")
+#: eval's data sets, in the order they run: validation shapes, simulated range images, segmentation, every checkpoint
+#: on the validation shapes, PCPNet.
+SETS = ("val", "depth", "fold", "lidar", "segment", "matrix", "pcpnet")
 
 DESCRIPTION = f"""MSAE (rad²) and RMSE (degrees) of the learned estimator, PCA at the same radius
-({RADIUS_FRACTION:.0%} of the bbox diagonal) and PCA at its best radius per cloud (an oracle over 1-10%), on six sets:
-the validation shapes (val), simulated depth frames of rooms (depth), close-range fold frames (fold), 32-beam LiDAR
-scans (lidar), a planar segmentation of fold frames by region growing (segment), and the PCPNet shapes with
+({RADIUS_FRACTION:.0%} of the bbox diagonal) and PCA at its best radius per cloud (an oracle over 1-10%), on seven
+sets: the validation shapes (val), simulated depth frames of rooms (depth), close-range fold frames (fold), 32-beam
+LiDAR scans (lidar), a planar segmentation of fold frames by region growing (segment), every shipped checkpoint with
+learned and hybrid against PCA on the validation shapes, regime by regime (matrix), and the PCPNet shapes with
 0 / 0.12 / 0.6 / 1.2% noise (pcpnet). Prints the tables; with --out, also writes them into that markdown file and
 pictures into images/ beside it. See docs/CLI.md."""
 

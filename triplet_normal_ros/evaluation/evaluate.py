@@ -16,7 +16,7 @@ import numpy as np
 from ..core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from ..errors import CloudFileError
 from ..io.cloud_files import read_normals_file, read_points
-from . import segment_eval
+from . import matrix_eval, segment_eval
 from .metrics import angles_rad, invalid_count, msae, ratio_interval, rmse_deg
 from .report import update_section
 
@@ -191,7 +191,7 @@ def run(
     out: Path | None,
     quick: bool,
     command: str,
-    sets: tuple[str, ...] = ("val", "depth", "fold", "lidar", "segment", "pcpnet"),
+    sets: tuple[str, ...] = ("val", "depth", "fold", "lidar", "segment", "matrix", "pcpnet"),
 ) -> None:
     """Each of `sets` (all by default): tables to stdout and, with `out`, into that markdown file (plus the fandisk
     heat map with pcpnet); blocks of sets not run are left as they are."""
@@ -226,6 +226,11 @@ def run(
 
     if "segment" in sets:
         _segment_set(device, quick, header, out)
+    if "matrix" in sets:
+        markdown = matrix_eval.run_matrix(device, quick, command + (" (--quick subset: not a result)" if quick else ""))
+        print(markdown)
+        if out is not None:
+            update_section(out, "eval-matrix", markdown)
     if "pcpnet" not in sets:
         return
     start = time.perf_counter()

@@ -1,0 +1,130 @@
+"""`eval --sets matrix`: every shipped checkpoint, with `learned` and with `hybrid`, against PCA over the same ball,
+regime by regime on the validation shapes (CAD parts and smooth shapes nothing was trained on, clean and noisy).
+
+The range-image regimes (depth frames, fold frames, LiDAR scans) have their own blocks, where every checkpoint is a
+row too (`range_eval`). Which checkpoint a user gets without naming one is `defaults.shipped_checkpoint`: on a CPU
+`lite` for these clouds (and `range` for range images), on a GPU `default`. A ratio above 1 loses to PCA.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+from tqdm import tqdm
+
+from ..core.config.conventions import RADIUS_FRACTION, bbox_diagonal
+from ..core.config.defaults import SHIPPED_FOR_DEVICE
+from ..core.estimator import NormalEstimator
+from ..core.learned.checkpoint import SHIPPED
+from ..training.dataset import NOISE_LEVELS, build_dataset
+from .metrics import angles_rad
+
+#: Points per validation cloud (as `val`), and query points per cloud (fixed seed): fewer than `val`'s, for six
+#: estimators per cloud.
+FULL_POINTS, QUERIES = 100_000, 1000
+#: PCA's neighbourhood: the whole 5 % ball, up to this many nearest points (the default checkpoint's pool).
+PCA_POOL = 512
+#: The regimes, as (label, kind or None for both, noise levels × the bbox diagonal).
+REGIMES = (
+    ("CAD parts, clean", "cad", (0.0,)),
+    ("CAD parts, 0.5 and 1 % noise", "cad", (0.005, 0.01)),
+    ("smooth shapes, 0-1 % noise", "smooth", (0.0, 0.0025, 0.005, 0.01)),
+    ("both, 1.5 and 2.5 % noise", None, (0.015, 0.025)),
+)
+METHODS = ("learned", "hybrid")
+#: --quick (tests only): two shapes at two noise levels, 5000 points each.
+QUICK_SHAPES, QUICK_NOISE, QUICK_POINTS, QUICK_QUERIES = ("v_notch_block", "ellipsoid_flat"), (0.0, 0.01), 5000, 200
+
+
+@dataclass
+class CloudRow:
+    """One validation cloud's mean squared angles: PCA's and each (method, checkpoint)'s."""
+
+    kind: str
+    noise: float
+    pca: float
+    methods: dict[tuple[str, str], float]
+
+
+def matrix_estimators(device: str) -> dict[tuple[str, str], NormalEstimator]:
+    """(method, checkpoint) -> estimator, for every shipped checkpoint and both network methods."""
+    return {
+        (method, name): NormalEstimator(method, radius=RADIUS_FRACTION, checkpoint=name, device=device)
+        for name in SHIPPED
+        for method in METHODS
+    }
+
+
+def evaluate_matrix(device: str, quick: bool) -> list[CloudRow]:
+    """Every validation cloud (normalised to diagonal 1) scored by PCA and by each estimator at the same queries."""
+    if quick:
+        clouds = build_dataset("val", QUICK_POINTS, 0, shapes=QUICK_SHAPES, noise_levels=QUICK_NOISE, progress=False)
+    else:
+        clouds = build_dataset("val", FULL_POINTS, 0, noise_levels=NOISE_LEVELS, progress=False)
+    estimators = matrix_estimators(device)
+    pca = NormalEstimator("pca", radius=RADIUS_FRACTION, device=device)
+    rows = []
+    for cloud in tqdm(clouds, desc="eval matrix", unit="cloud", disable=None, file=sys.stderr):
+        points = np.asarray(cloud.points, dtype=np.float64)
+        query = np.sort(
+            np.random.default_rng(0).choice(
+                len(points), min(len(points), QUICK_QUERIES if quick else QUERIES), replace=False
+            )
+        )
+        exact = cloud.normals[query]
+        radius = RADIUS_FRACTION * bbox_diagonal(points)
+        counts = cKDTree(points).query_ball_point(points[query], radius, return_length=True, workers=-1)
+        pca.radius, pca.k = radius, int(np.clip(np.max(counts, initial=3), 3, PCA_POOL))
+        scores = {}
+        for key, estimator in estimators.items():
+            estimator.radius = radius
+            scores[key] = float(np.mean(angles_rad(estimator.estimate(points, query)[0], exact) ** 2))
+        pca_score = float(np.mean(angles_rad(pca.estimate(points, query)[0], exact) ** 2))
+        rows.append(CloudRow(cloud.kind, cloud.noise, pca_score, scores))
+    return rows
+
+
+def matrix_markdown(rows: list[CloudRow], command: str, seconds: float, quick: bool = False) -> str:
+    """The block: one row per regime, one column per (method, checkpoint), each MSAE over PCA's (means over the
+    regime's clouds), the CPU and GPU defaults marked."""
+    keys = list(rows[0].methods) if rows else []
+    cpu, gpu = SHIPPED_FOR_DEVICE["cpu"], SHIPPED_FOR_DEVICE["cuda"]
+
+    def label(method: str, name: str) -> str:
+        marks = [m for m, default in (("CPU default", cpu), ("GPU default", gpu)) if default == name]
+        return f"{method}, `{name}`" + (f" ({', '.join(marks)})" if marks else "")
+
+    lines = [
+        "## Every checkpoint against PCA, regime by regime (`triplet-normal eval`)",
+        "",
+        f"Command: `{command}`",
+        f"Clouds: the validation shapes (never trained on), {QUICK_POINTS if quick else FULL_POINTS} points each, "
+        f"{QUICK_QUERIES if quick else QUERIES} query points per cloud "
+        f"(`default_rng(0)`), r = {RADIUS_FRACTION:.0%} of the bbox diagonal. Each cell: the method's MSAE over PCA's "
+        f"(the whole ball, up to {PCA_POOL} nearest points), means over the regime's clouds; above 1 loses to PCA. "
+        "With no checkpoint named, these clouds get `lite` on a CPU and `default` on a GPU; range images get `range` "
+        "on a CPU (the depth, fold and LiDAR blocks).",
+        "",
+        "| regime | clouds | PCA MSAE | " + " | ".join(label(*key) for key in keys) + " |",
+        "| --- | ---: | ---: | " + " | ".join("---:" for _ in keys) + " |",
+    ]
+    for name, kind, levels in REGIMES:
+        chosen = [r for r in rows if (kind is None or r.kind == kind) and any(abs(r.noise - n) < 1e-9 for n in levels)]
+        if not chosen:
+            continue
+        pca = np.mean([r.pca for r in chosen])
+        cells = [f"{np.mean([r.methods[key] for r in chosen]) / pca:.3f}" for key in keys]
+        lines.append(f"| {name} | {len(chosen)} | {pca:.5f} | " + " | ".join(cells) + " |")
+    lines += ["", f"Wall time {seconds / 60:.1f} min."]
+    return "\n".join(lines)
+
+
+def run_matrix(device: str, quick: bool, command: str) -> str:
+    """The matrix set's block, timed."""
+    start = time.perf_counter()
+    rows = evaluate_matrix(device, quick)
+    return matrix_markdown(rows, command, time.perf_counter() - start, quick)
