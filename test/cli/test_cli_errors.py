@@ -93,7 +93,10 @@ def test_estimate_bad_values(tmp_path: Path, capsys, ok_xyz: Path, args: list[st
         (["eval", "--points-per-cloud", "-3"], "--points-per-cloud must be >= 10"),
         (["eval", "--points-per-cloud", "nan"], "invalid int value"),
         (["eval", "--device", "tpu"], "device must be"),
-        (["eval", "--sets", "depth,kinect"], "--sets must name some of val, depth, fold, lidar, segment, matrix, pcpnet"),
+        (
+            ["eval", "--sets", "depth,kinect"],
+            "--sets must name some of val, depth, fold, lidar, segment, matrix, pcpnet",
+        ),
         (["eval", "--sets", ","], "--sets must name some of"),
         (["ablate", "--epochs", "0"], "--epochs must be >= 1"),
         (["ablate", "--epochs", "-1"], "--epochs must be >= 1"),
