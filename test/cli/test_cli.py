@@ -222,7 +222,7 @@ def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
     cells = [[c.strip() for c in line.split("|")[1:-1]] for line in matrix.splitlines() if line.startswith("| ")]
     header, rows = cells[0], {c[0]: c for c in cells[2:]}
     assert "learned, `lite` (CPU default)" in header and "hybrid, `default` (GPU default)" in header
-    assert "hybrid, `range`" in header and len(header) == 3 + 6
+    assert "hybrid, `range`" in header and "PCA over `lite`'s pool" in header and len(header) == 3 + 6 + 2
     assert set(rows) == {"CAD parts, clean", "CAD parts, 0.5 and 1 % noise", "smooth shapes, 0-1 % noise"}
     assert all(0 < float(ratio) < 10 for row in rows.values() for ratio in row[3:])
 

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
-from ..core.config.conventions import RADIUS_FRACTION, bbox_diagonal
+from ..core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from ..core.config.defaults import SHIPPED_FOR_DEVICE
 from ..core.estimator import NormalEstimator
 from ..core.learned.checkpoint import SHIPPED
@@ -51,12 +51,19 @@ class CloudRow:
 
 
 def matrix_estimators(device: str) -> dict[tuple[str, str], NormalEstimator]:
-    """(method, checkpoint) -> estimator, for every shipped checkpoint and both network methods."""
-    return {
+    """(method, checkpoint) -> estimator, for every shipped checkpoint and both network methods; then ("pca", name)
+    for each checkpoint whose pool (POOL_FACTOR × its k nearest points, where its PCA frame and hybrid's plane
+    come from) is smaller than the reference PCA's: PCA over that pool, which shows what the pool alone costs."""
+    rows = {
         (method, name): NormalEstimator(method, radius=RADIUS_FRACTION, checkpoint=name, device=device)
         for name in SHIPPED
         for method in METHODS
     }
+    for name in SHIPPED:
+        pool = POOL_FACTOR * rows[("learned", name)].k
+        if pool < PCA_POOL:
+            rows[("pca", name)] = NormalEstimator("pca", radius=RADIUS_FRACTION, k=pool, device=device)
+    return rows
 
 
 def evaluate_matrix(device: str, quick: bool) -> list[CloudRow]:
@@ -95,6 +102,8 @@ def matrix_markdown(rows: list[CloudRow], command: str, seconds: float, quick: b
     cpu, gpu = SHIPPED_FOR_DEVICE["cpu"], SHIPPED_FOR_DEVICE["cuda"]
 
     def label(method: str, name: str) -> str:
+        if method == "pca":
+            return f"PCA over `{name}`'s pool"
         marks = [m for m, default in (("CPU default", cpu), ("GPU default", gpu)) if default == name]
         return f"{method}, `{name}`" + (f" ({', '.join(marks)})" if marks else "")
 
@@ -107,7 +116,8 @@ def matrix_markdown(rows: list[CloudRow], command: str, seconds: float, quick: b
         f"(`default_rng(0)`), r = {RADIUS_FRACTION:.0%} of the bbox diagonal. Each cell: the method's MSAE over PCA's "
         f"(the whole ball, up to {PCA_POOL} nearest points), means over the regime's clouds; above 1 loses to PCA. "
         "With no checkpoint named, these clouds get `lite` on a CPU and `default` on a GPU; range images get `range` "
-        "on a CPU (the depth, fold and LiDAR blocks).",
+        "on a CPU (the depth, fold and LiDAR blocks). *PCA over a checkpoint's pool*: PCA of the points that "
+        f"checkpoint's PCA frame and `hybrid`'s plane come from ({POOL_FACTOR} × its k nearest).",
         "",
         "| regime | clouds | PCA MSAE | " + " | ".join(label(*key) for key in keys) + " |",
         "| --- | ---: | ---: | " + " | ".join("---:" for _ in keys) + " |",
