@@ -100,10 +100,10 @@ train: venv
 	$(VENV)/bin/triplet-normal train --recipe scales --run-dir out/train_scales
 
 eval: venv
-	$(VENV)/bin/triplet-normal eval --pcpnet-dir ../shared/data/pcpnet --out docs/RESULTS.md
+	$(VENV)/bin/triplet-normal eval --pcpnet-dir ../shared/data/pcpnet --out docs/RESULTS.md --update-tracked
 
 bench: venv
-	$(VENV)/bin/triplet-normal bench --out docs/RESULTS.md
+	$(VENV)/bin/triplet-normal bench --out docs/RESULTS.md --update-tracked
 
 clean:
 	rm -rf $(VENV) $(JAZZY_VENV) build install log out .pytest_cache .hypothesis .ruff_cache
