@@ -31,7 +31,7 @@ from triplet_normal_ros.ros.params import SPEC_BY_NAME, SPECS
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE_DIR = Path(triplet_normal_ros.__file__).parent
 RESULTS = REPO / "docs" / "RESULTS.md"
-DOCS = ("README.md", "docs/NODE.md", "docs/CLI.md", "docs/MODEL.md", "docs/DESIGN.md")
+DOCS = ("README.md", "docs/NODE.md", "docs/CLI.md", "docs/MODEL.md", "docs/DESIGN.md", "docs/CHOOSING.md")
 LAUNCH = REPO / "launch" / "triplet_normal.launch.py"
 #: The package's folders (core, io, ros, ...): a path or dotted name starting with one is resolved inside the package.
 LAYERS = tuple(sorted(p.parent.name for p in PACKAGE_DIR.glob("*/__init__.py")))
@@ -376,8 +376,8 @@ def test_parameter_tables_match_the_node(doc: str) -> None:
     assert parameter_table_problems(_read(doc)) == []
 
 
-def test_readme_has_the_parameter_table() -> None:
-    assert tables(_read("README.md"), PARAM_HEADER), "README.md lost its parameter table"
+def test_node_doc_has_the_parameter_table() -> None:
+    assert tables(_read("docs/NODE.md"), PARAM_HEADER), "docs/NODE.md lost its parameter table"
 
 
 def test_allowed_constants_match_the_code() -> None:

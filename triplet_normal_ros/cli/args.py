@@ -166,7 +166,7 @@ def add_network_options(p: argparse.ArgumentParser) -> None:
 
 
 def add_sensor_options(p: argparse.ArgumentParser) -> None:
-    """--range-scale and --keep-zeros: what a spinning LiDAR needs (README, "Sensor presets")."""
+    """--range-scale and --keep-zeros: what a spinning LiDAR needs (docs/NODE.md, "Sensor presets")."""
     p.add_argument(
         "--range-scale",
         type=float,
