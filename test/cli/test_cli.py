@@ -267,7 +267,7 @@ def test_eval_pcpnet_named_without_its_data_fails_before_working(tmp_path: Path)
     assert not (tmp_path / "R.md").exists()
 
 
-@pytest.mark.parametrize("command", [["eval", "--sets", "val"], ["bench", "--method", "pca"]])
+@pytest.mark.parametrize("command", [["eval", "--sets", "val"], ["bench", "--method", "pca"], ["ablate"]])
 def test_out_refuses_a_file_git_tracks_unless_asked(tmp_path: Path, command: list[str]) -> None:
     """--out on a tracked file is one error line before any work, naming --update-tracked; the file is untouched."""
     doc = tmp_path / "RESULTS.md"

@@ -81,7 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The full parser; the options of a heavy command are only built when it is `command`."""
-    parser = _Parser(prog=PROG, description="Learned (triplet) and PCA point-cloud normals, offline.")
+    parser = _Parser(prog=PROG, description="Learned (triplet), PCA and hybrid point-cloud normals, offline.")
     names = ",".join(name for name, _, _ in COMMANDS)
     commands = parser.add_subparsers(dest="command", required=True, metavar=f"{{{names}}}")
     for name, module, help_text in COMMANDS:
