@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
 # Every dependency, pinned. torch==2.13.0 is whatever build pip finds first: here the local CPU wheel (/opt/wheels),
-# elsewhere PyPI's CUDA build (several GB). README, "Which torch", says how to choose the CPU or CUDA build.
+# elsewhere PyPI's CUDA build (several GB). docs/CHOOSING.md, "Installing and testing", says how to choose the CPU or CUDA build.
 # setuptools<80: newer releases silently break `colcon build --symlink-install`.
 # ROS 2 comes from PyPI wheels: Kilted in .venv/, Jazzy (the LTS; Fast DDS 2) in .venv-jazzy/.
 KILTED := ros-rclpy==9.1.2 ros-sensor-msgs==5.5.1 ros-rmw-fastrtps-cpp==9.3.3 ros-diagnostic-msgs==5.5.1 \
@@ -100,10 +100,10 @@ train: venv
 	$(VENV)/bin/triplet-normal train --recipe scales --run-dir out/train_scales
 
 eval: venv
-	$(VENV)/bin/triplet-normal eval --pcpnet-dir ../shared/data/pcpnet --out docs/RESULTS.md
+	$(VENV)/bin/triplet-normal eval --pcpnet-dir ../shared/data/pcpnet --out docs/RESULTS.md --update-tracked
 
 bench: venv
-	$(VENV)/bin/triplet-normal bench --out docs/RESULTS.md
+	$(VENV)/bin/triplet-normal bench --out docs/RESULTS.md --update-tracked
 
 clean:
 	rm -rf $(VENV) $(JAZZY_VENV) build install log out .pytest_cache .hypothesis .ruff_cache

@@ -8,7 +8,7 @@
 Arguments: ``input`` and ``output`` remap the node's topics (defaults: the node's own names, so relative ones that
 follow the namespace); ``namespace`` puts the node and its relative topics under it (default: none); ``preset`` picks
 a parameter file installed under ``share/triplet_normal_ros/config/``: ``params`` (the node's defaults, every
-parameter listed), ``depth_camera`` or ``lidar`` (README, "Sensor presets").
+parameter listed), ``depth_camera`` or ``lidar`` (docs/NODE.md, "Sensor presets").
 
 Which parameters win: the preset's file is always loaded; ``params_file`` (default: empty, none) is a ROS 2 parameter
 file of your own, loaded after it, so each key your file sets overrides the preset's and every other key keeps the

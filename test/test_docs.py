@@ -9,6 +9,10 @@ Sizes (MB, kB), counts and parameter values (radius 0.05, k 64) are not figures.
 docs/RESULTS.md writes the same number with the same unit (spaces, thousands separators and the ×/x spelling aside),
 or, for a bare figure, the same number anywhere; the few constants of the code that read like figures are listed in
 ALLOWED, each checked against its source. Log formats in the docs write their figures as capital letters.
+
+Figures are held by docs/RESULTS.md alone, today's tables; docs/HISTORY.md (studies and superseded figures) holds
+none, so a figure that survives only in history fails here. RESULTS stays within RESULTS_MAX_LINES, and README's
+accuracy table quotes the `eval` blocks themselves.
 """
 
 from __future__ import annotations
@@ -31,7 +35,8 @@ from triplet_normal_ros.ros.params import SPEC_BY_NAME, SPECS
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE_DIR = Path(triplet_normal_ros.__file__).parent
 RESULTS = REPO / "docs" / "RESULTS.md"
-DOCS = ("README.md", "docs/NODE.md", "docs/CLI.md", "docs/MODEL.md", "docs/DESIGN.md")
+RESULTS_MAX_LINES = 600
+DOCS = ("README.md", "docs/NODE.md", "docs/CLI.md", "docs/MODEL.md", "docs/DESIGN.md", "docs/CHOOSING.md")
 LAUNCH = REPO / "launch" / "triplet_normal.launch.py"
 #: The package's folders (core, io, ros, ...): a path or dotted name starting with one is resolved inside the package.
 LAYERS = tuple(sorted(p.parent.name for p in PACKAGE_DIR.glob("*/__init__.py")))
@@ -98,7 +103,47 @@ ALLOWED: dict[tuple[str, str], tuple[str, Callable[[], set[float]]]] = {
         lambda: {100 * _constant("core/learned/scales.py", "INLIER_SLACK")},
     ),
     ("15", "°"): ("the support angle of the paper's normal loss", lambda: {_loss_support_deg()}),
+    ("0.25", "s"): (
+        "the start-up probe's small image, above which its own points stand for the forecast",
+        lambda: {_constant("core/throughput.py", "POINTS_DOMINATE_S")},
+    ),
+    ("10", "×"): (
+        "how much slower than the slowest cloud is stuck",
+        lambda: {_constant("ros/health.py", "STUCK_FACTOR")},
+    ),
+    ("25", "°"): ("the lattice's agreement angle", lambda: {_constant("core/range_image/lattice.py", "AGREE_DEGREES")}),
+    ("7.5", "°"): (
+        "the coarser lattice level's agreement angle",
+        lambda: {_constant("core/range_image/lattice.py", "COARSE_AGREE_DEGREES")},
+    ),
+    ("20", "°"): (
+        "the triplets' positive / negative angle",
+        lambda: {_constant("training/triplets.py", "THRESHOLD_DEG")},
+    ),
+    ("5", "°"): ("the relative loss's floor φ", lambda: {_constant("training/losses.py", "RELATIVE_FLOOR_DEG")}),
+    ("2", "×"): ("FLOPs per multiply-add, as bench counts them", lambda: {_flops_per_multiply_add()}),
+    ("3", "×"): (
+        "how much better a one-sided window must fit",
+        lambda: {_constant("core/range_image/sides.py", "SHARPER")},
+    ),
+    ("30", "°"): ("the fold snap's reach", lambda: {_constant("core/range_image/sides.py", "SNAP_DEGREES")}),
 }
+
+
+def _flops_per_multiply_add() -> float:
+    """`bench.network_mflop` of the default checkpoint over its multiply-adds counted from the layer widths here."""
+    import itertools
+
+    from triplet_normal_ros.core.learned.checkpoint import read_metadata, resolve_checkpoint
+    from triplet_normal_ros.evaluation.bench import network_mflop
+
+    meta = read_metadata(resolve_checkpoint("default"))
+    widths, head = [3, *meta["architecture"]["encoder"]], [meta["architecture"]["encoder"][-1]]
+    head += [*meta["architecture"]["regressor"], 3]
+    macs = meta["k"] * sum(a * b for a, b in itertools.pairwise(widths)) + sum(
+        a * b for a, b in itertools.pairwise(head)
+    )
+    return round(network_mflop("default")[1] * 1e6 / macs, 6)
 
 
 def figures(text: str) -> list[tuple[str, str]]:
@@ -376,8 +421,39 @@ def test_parameter_tables_match_the_node(doc: str) -> None:
     assert parameter_table_problems(_read(doc)) == []
 
 
-def test_readme_has_the_parameter_table() -> None:
-    assert tables(_read("README.md"), PARAM_HEADER), "README.md lost its parameter table"
+def generated_blocks(text: str, prefix: str = "") -> str:
+    """The bodies of `text`'s BEGIN/END blocks whose names start with `prefix`, joined."""
+    found = re.findall(r"<!-- BEGIN (\S+) -->\n(.*?)<!-- END \1 -->", text, re.DOTALL)
+    return "\n".join(body for name, body in found if name.startswith(prefix))
+
+
+def test_results_holds_todays_tables_within_its_length() -> None:
+    lines = RESULTS.read_text().count("\n")
+    assert lines <= RESULTS_MAX_LINES, f"docs/RESULTS.md has {lines} lines: move studies to docs/HISTORY.md"
+
+
+def test_readme_accuracy_figures_are_the_eval_blocks() -> None:
+    """Every MSAE README's accuracy section quotes is in an `eval-*` block, not only in prose that quotes one."""
+    readme = _read("README.md")
+    section = readme[readme.index("\n## Accuracy") :]
+    section = section[: section.index("\n## ", 1)]
+    quoted = {number for number, unit in figures(section) if unit == ""}
+    assert quoted, "README's accuracy section quotes no MSAE"
+    assert sorted(quoted - numbers(generated_blocks(RESULTS.read_text(), "eval-"))) == []
+
+
+def test_readme_is_a_quickstart_linking_every_doc() -> None:
+    lines = _read("README.md").splitlines()
+    assert len(lines) <= 180, f"README.md has {len(lines)} lines: move details into docs/"
+    first = "\n".join(lines[:80])
+    for command in ("make demo", "make test", "ros2 run triplet_normal_ros node"):
+        assert command in first, f"README's first 80 lines lack `{command}`"
+    unlinked = [p.name for p in sorted((REPO / "docs").glob("*.md")) if f"(docs/{p.name})" not in "\n".join(lines)]
+    assert unlinked == [], f"README links no {unlinked}"
+
+
+def test_node_doc_has_the_parameter_table() -> None:
+    assert tables(_read("docs/NODE.md"), PARAM_HEADER), "docs/NODE.md lost its parameter table"
 
 
 def test_allowed_constants_match_the_code() -> None:

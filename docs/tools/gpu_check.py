@@ -72,8 +72,8 @@ def cmd_probe(args: argparse.Namespace) -> int:
     if not torch.cuda.is_available():
         build = "the CPU build" if torch.version.cuda is None else f"built for CUDA {torch.version.cuda}"
         print(
-            f"gpu_check: torch {torch.__version__} in this venv ({build}) sees no CUDA device; README, "
-            "'Which torch', says how to install a CUDA build",
+            f"gpu_check: torch {torch.__version__} in this venv ({build}) sees no CUDA device; docs/CHOOSING.md, "
+            "'Installing and testing', says how to install a CUDA build",
             file=sys.stderr,
         )
         return 1

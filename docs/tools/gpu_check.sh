@@ -6,7 +6,7 @@
 #
 # 1. No CUDA device visible: one line, exit 1, before anything is installed.
 # 2. `make venv` (the pinned torch==2.13.0 resolves to PyPI's CUDA build where no CPU wheel is offered first;
-#    README, "Which torch") and torch must see the GPU.
+#    docs/CHOOSING.md, "Installing and testing") and torch must see the GPU.
 # 3. colcon build into out/ws, as `make demo` does (the node runs from its install).
 # 4. docs/tools/gpu_check.py compare: NormalEstimator on cuda against the CPU at the same query points of a
 #    simulated depth frame (pca through the integral-image window, the KD-tree and the cell lists; learned and

@@ -30,7 +30,7 @@ SEEDS = (100, 101, 102)
 STRIDE = 23
 CACHE = Path(".cache/window_gate_study")
 #: Gates to compare: (z score, bend in radii). sqrt(30) is what the default F gate of 10 mapped to when this study
-#: ran; `hybrid.window_z` now maps it to sqrt(10) (docs/RESULTS.md, "The window gate, re-tuned with the lattice").
+#: ran; `hybrid.window_z` now maps it to sqrt(10) (docs/HISTORY.md, "The window gate, re-tuned with the lattice").
 GATES = [(z, b) for z in (3.0, 4.0, 30**0.5, 8.0) for b in (0.01, 0.02, 0.03)]
 
 

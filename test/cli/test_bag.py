@@ -338,6 +338,21 @@ def test_without_a_checkpoint_each_cloud_gets_the_nodes_choice_on_a_cpu(tmp_path
     assert job["checkpoint"] == "range on range images and lite otherwise"
 
 
+def test_the_summary_line_names_the_checkpoints_that_served(tmp_path: Path) -> None:
+    """The installed command, on a CPU without --checkpoint: range answers the range image, lite the other cloud, and
+    the one summary line on stdout says so."""
+    image = cloud(organized_points(*SHAPE), 42, height=SHAPE[0])
+    scattered = cloud(scattered_points(2000, seed=8), 43)
+    records = [Record("/cam/points", CLOUD, 7, image), Record("/cam/points", CLOUD, 8, scattered)]
+    source = write_bag(tmp_path / "in", "mcap", records)
+    options = ["--method", "hybrid", "--radius", str(RADIUS), "--device", "cpu", "--no-copy"]
+    argv = [SCRIPT, "bag", source, tmp_path / "out", "--topic", "/cam/points", *options]
+    done = subprocess.run(list(map(str, argv)), capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    (line,) = done.stdout.splitlines()
+    assert "; hybrid, checkpoints range and lite, radius 0.15 m, cpu; " in line, line
+
+
 def test_a_malformed_cloud_is_skipped_with_a_warning(tmp_path: Path, capsys) -> None:
     good = cloud(scattered_points(2000, seed=4), 5)
     bad = cloud(scattered_points(500, seed=5), 6)

@@ -10,6 +10,9 @@ import pytest
 from helpers import write_points
 
 from triplet_normal_ros.cli.main import main
+from triplet_normal_ros.core.config.device import device_type
+from triplet_normal_ros.core.config.plan import checkpoint_for
+from triplet_normal_ros.core.config.settings import Settings
 from triplet_normal_ros.evaluation.metrics import rmse_deg
 from triplet_normal_ros.evaluation.report import read_section, update_section
 from triplet_normal_ros.io.cloud_files import read_cloud, read_normals_file
@@ -28,6 +31,13 @@ def run_cli(*args: str | Path, cwd: Path | None = None, env: dict | None = None)
         cwd=cwd,
         env={**os.environ, **(env or {})},
     )
+
+
+def commit(repo: Path, path: str) -> None:
+    """`path` (below `repo`) committed to a new git repository at `repo`: a file git tracks."""
+    git = ["git", "-C", str(repo), "-c", "user.name=test", "-c", "user.email=test@example.com"]
+    for step in (["init", "-q"], ["add", path], ["commit", "-q", "-m", "results"]):
+        subprocess.run([*git, *step], check=True, capture_output=True)
 
 
 def sphere(n: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -106,6 +116,8 @@ def test_estimate_learned_with_shipped_checkpoint(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr
     out = read_cloud(tmp_path / "plane.pcd")
     assert out.normals.shape == (500, 3)
+    served = checkpoint_for(Settings(method="learned"), device_type("auto"))  # lite on a CPU: not a range image
+    assert f"(learned, checkpoint {served}, radius 0.3, " in done.stdout, done.stdout
     # Measured 0.84 deg with the default checkpoint, 2.35 deg with lite (the CPU's choice where it applies).
     assert rmse_deg(out.normals, np.tile([0, 0, 1.0], (500, 1))) < 4.0
 
@@ -163,39 +175,43 @@ def test_update_section_replaces_only_its_block(tmp_path: Path) -> None:
 
 
 def test_eval_sets_rewrites_only_the_chosen_blocks(tmp_path: Path) -> None:
-    """--sets lidar runs the LiDAR scans alone: no PCPNet directory needed, every other block left as it was."""
+    """--sets lidar runs the LiDAR scans alone: no PCPNet directory needed, every other block left as it was; a file
+    git tracks is rewritten with --update-tracked, and no line mentions the sets not asked for."""
     doc = tmp_path / "docs" / "RESULTS.md"
     for block in ("eval-val", "eval-depth", "eval-fold", "eval-lidar", "eval-segment", "eval-pcpnet"):
         update_section(doc, block, "kept")
+    commit(tmp_path, "docs/RESULTS.md")
     done = run_cli(
-        "eval", "--quick", "--sets", "lidar", "--pcpnet-dir", tmp_path / "absent", "--out", doc,
+        "eval", "--quick", "--sets", "lidar", "--pcpnet-dir", tmp_path / "absent", "--out", doc, "--update-tracked",
         env={"TRIPLET_NORMAL_CACHE": str(tmp_path / "cache")},
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
+    assert "pcpnet" not in done.stderr
     assert "radius 0.25 m" in read_section(doc, "eval-lidar")
     kept = ("eval-val", "eval-depth", "eval-fold", "eval-segment", "eval-pcpnet")
     assert [read_section(doc, b) for b in kept] == ["kept"] * 5
 
 
-def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
-    pcpnet = tmp_path / "pcpnet"
-    pcpnet.mkdir()
-    points, normals = sphere(3000, seed=1)
-    np.savetxt(pcpnet / "fandisk100k.xyz", points, fmt="%.6f")
-    np.savetxt(pcpnet / "fandisk100k.normals", normals, fmt="%.6f")
+def test_eval_default_sets_skip_pcpnet_without_its_data(tmp_path: Path) -> None:
+    """Without --sets every set runs, less pcpnet when --pcpnet-dir lacks its shapes: one stderr line says so, and the
+    pcpnet block is left as it was."""
     doc = tmp_path / "docs" / "RESULTS.md"
     update_section(doc, "bench", "kept")
+    update_section(doc, "eval-pcpnet", "kept")
+    absent = tmp_path / "absent"
     done = run_cli(
-        "eval", "--quick", "--pcpnet-dir", pcpnet, "--out", doc, env={"TRIPLET_NORMAL_CACHE": str(tmp_path / "cache")}
+        "eval", "--quick", "--pcpnet-dir", absent, "--out", doc, env={"TRIPLET_NORMAL_CACHE": str(tmp_path / "cache")}
     )
     assert done.returncode == 0, done.stderr
-    val, pcp = read_section(doc, "eval-val"), read_section(doc, "eval-pcpnet")
+    assert [line for line in done.stderr.splitlines() if "pcpnet" in line] == [
+        f"triplet-normal eval: skipping pcpnet: {absent} lacks cube100k, fandisk100k, bunny100k, armadillo100k "
+        "(PCPNet does not ship; pass --pcpnet-dir DIR)"
+    ]
+    val = read_section(doc, "eval-val")
     assert "| v_notch_block | cad | 1 |" in val and "smooth shapes: no worse than PCA 5%" in val
     assert "| 0.5 + 1 pooled | 1 |" in val  # the CAD clouds against the Bayes floor
     assert val.count("95% CI ") == 3  # both target ratios and the Bayes floor's ratio carry their bootstrap interval
-    assert "| fandisk100k | cad | 1.2 |" in pcp and "images/heatmap_fandisk.png" in pcp
-    assert read_section(doc, "bench") == "kept"
-    assert (doc.parent / "images" / "heatmap_fandisk.png").stat().st_size > 10_000
+    assert read_section(doc, "bench") == "kept" and read_section(doc, "eval-pcpnet") == "kept"
     for kind, radius in (("depth", "0.05 m"), ("fold", "0.05 m"), ("lidar", "0.25 m")):  # the simulated range images
         block = read_section(doc, f"eval-{kind}")
         assert block is not None and f"radius {radius}" in block
@@ -227,8 +243,39 @@ def test_eval_quick_writes_its_blocks_and_heatmap(tmp_path: Path) -> None:
     assert all(0 < float(ratio) < 10 for row in rows.values() for ratio in row[3:])
 
 
-def test_eval_without_pcpnet_dir_fails_before_working(tmp_path: Path) -> None:
-    done = run_cli("eval", "--pcpnet-dir", tmp_path / "absent", "--out", tmp_path / "R.md")
+def test_eval_quick_pcpnet_writes_its_block_and_heatmap(tmp_path: Path) -> None:
+    pcpnet = tmp_path / "pcpnet"
+    pcpnet.mkdir()
+    points, normals = sphere(3000, seed=1)
+    np.savetxt(pcpnet / "fandisk100k.xyz", points, fmt="%.6f")
+    np.savetxt(pcpnet / "fandisk100k.normals", normals, fmt="%.6f")
+    doc = tmp_path / "docs" / "RESULTS.md"
+    update_section(doc, "eval-val", "kept")
+    done = run_cli("eval", "--quick", "--sets", "pcpnet", "--pcpnet-dir", pcpnet, "--out", doc)
+    assert done.returncode == 0, done.stderr
+    pcp = read_section(doc, "eval-pcpnet")
+    assert "| fandisk100k | cad | 1.2 |" in pcp and "images/heatmap_fandisk.png" in pcp
+    assert read_section(doc, "eval-val") == "kept"
+    assert (doc.parent / "images" / "heatmap_fandisk.png").stat().st_size > 10_000
+
+
+def test_eval_pcpnet_named_without_its_data_fails_before_working(tmp_path: Path) -> None:
+    done = run_cli("eval", "--sets", "val,pcpnet", "--pcpnet-dir", tmp_path / "absent", "--out", tmp_path / "R.md")
     assert done.returncode == 1
     assert_one_error_line(done.stderr)
+    assert "missing PCPNet shape(s)" in done.stderr
     assert not (tmp_path / "R.md").exists()
+
+
+@pytest.mark.parametrize("command", [["eval", "--sets", "val"], ["bench", "--method", "pca"], ["ablate"]])
+def test_out_refuses_a_file_git_tracks_unless_asked(tmp_path: Path, command: list[str]) -> None:
+    """--out on a tracked file is one error line before any work, naming --update-tracked; the file is untouched."""
+    doc = tmp_path / "RESULTS.md"
+    update_section(doc, "eval-val", "kept")
+    commit(tmp_path, "RESULTS.md")
+    before = doc.read_text()
+    done = run_cli(*command, "--out", doc)
+    assert done.returncode == 2
+    assert_one_error_line(done.stderr)
+    assert f"--out {doc} is tracked by git; pass --update-tracked" in done.stderr
+    assert doc.read_text() == before and done.stdout == ""

@@ -89,7 +89,7 @@ def test_the_lidar_preset_is_its_values_typed_out_for_bag(tmp_path: Path, capsys
     preset = bag(capsys, bag_in, tmp_path / "preset", "--params-file", "lidar")
     typed = bag(capsys, bag_in, tmp_path / "typed", *LIDAR_TYPED, *LIDAR_VIEWPOINT)
     assert preset == typed
-    assert "hybrid, radius 0.25 m, cpu" in preset[0]
+    assert "hybrid, checkpoint lite, radius 0.25 m, cpu" in preset[0]
     without = bag(capsys, bag_in, tmp_path / "without", *LIDAR_TYPED[:-4])
     assert without[1] != preset[1]
 

@@ -298,7 +298,7 @@ def test_slope_windows_shrink_only_along_the_axis_the_surface_recedes() -> None:
 def test_slope_windows_make_hybrids_survey_better_at_folds_and_no_worse_elsewhere() -> None:
     """On a close-range fold frame (a seed no study or eval uses), the survey from slope-fitted windows is nearer the
     exact normals than the first windows' near the folds, and no worse away from them: the bleed it removes is the
-    window reaching past the ball on a surface seen at a grazing angle (docs/RESULTS.md, "Folds")."""
+    window reaching past the ball on a surface seen at a grazing angle (docs/HISTORY.md, "Folds")."""
     from triplet_normal_ros.simulation.fold_scenes import fold_frame
 
     frame = fold_frame(500, "stairs")

@@ -60,7 +60,7 @@ TOTALS = re.compile(r"total: (\d+) arrived, (\d+) clouds, (\d+) dropped, (\d+) r
 @pytest.fixture(scope="module")
 def pca_node(install_prefix: Path, ros_env: dict[str, str], tmp_path_factory) -> Iterator[NodeProcess]:
     """One node for the module: pca, its default best-effort input (full frames arrive through the shipped Fast DDS
-    profile, which the node and this process both load; README, QoS)."""
+    profile, which the node and this process both load; docs/NODE.md, "Topics and QoS")."""
     folder = tmp_path_factory.mktemp("node")
     with running_node(install_prefix, ros_env, folder, PCA_PARAMS, {"input": IN, "output": OUT}) as node:
         yield node

@@ -97,7 +97,8 @@ class Outcome:
 def outcome(install_prefix, ros_env, tmp_path_factory) -> Outcome:
     """One flood for the module's checks: the figures are the product, each test reads one aspect of them."""
     folder = tmp_path_factory.mktemp("soak")
-    # 2 MB clouds, sent faster than they are answered: reliable and queued (README, QoS; overload.FLOOD_DEPTH)
+    # 2 MB clouds, sent faster than they are answered: reliable and queued (docs/NODE.md, "Topics and QoS";
+    # overload.FLOOD_DEPTH)
     params = params_yaml(folder / "params.yaml", NODE_PARAMS, reliable_topics=(IN,), depth=FLOOD_DEPTH)
     node = NodeProcess(
         install_prefix,

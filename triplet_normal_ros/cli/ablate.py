@@ -7,7 +7,8 @@ from ..core.config import defaults
 from . import args as checks
 
 DESCRIPTION = """Train every ablation variant at a stated, reduced budget and score it on the validation set.
-Prints the table; with --out, also writes it into that markdown file. See docs/RESULTS.md."""
+Prints the table; with --out, also writes it into that markdown file, a file git tracks (docs/RESULTS.md) only with
+--update-tracked. See docs/RESULTS.md."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--per-cloud", type=int, default=1000, help="validation query points per cloud")
     parser.add_argument("--run-dir", type=Path, default=Path("out/ablation"))
     parser.add_argument("--device", default=defaults.DEVICE)
-    parser.add_argument("--out", type=Path, metavar="MD", help="results markdown to update (e.g. docs/RESULTS.md)")
+    checks.add_results_options(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -33,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     checks.at_least("epochs", args.epochs, 1)
     checks.at_least("per-cloud", args.per_cloud, 1)
     checks.device(args.device)
-    checks.results_file(args.out)
+    checks.results_file(args.out, args.update_tracked)
     budget = Budget(resolve_checkpoint(args.encoder_from), args.patches_per_shape, args.epochs, args.per_cloud)
     run(budget, args.run_dir, args.device, args.out, checks.command_line(args.argv))
     return 0

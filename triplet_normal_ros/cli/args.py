@@ -11,6 +11,7 @@ line leaves out; its values are judged by the same rules, in the node's words, u
 import argparse
 import math
 import shlex
+import subprocess
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -91,10 +92,49 @@ def command_line(subcommand_argv: Sequence[str]) -> str:
     return "triplet-normal " + " ".join(shlex.quote(a) for a in subcommand_argv)
 
 
-def results_file(path) -> None:
-    """A results markdown to update must sit in an existing directory (it is created, never its parents)."""
-    if path is not None and not path.parent.is_dir():
+def served_words(checkpoints: list[str]) -> str:
+    """A summary line's words for the checkpoints that answered: ', checkpoint range', ', checkpoints range and
+    lite', or '' when none did (pca)."""
+    if not checkpoints:
+        return ""
+    if len(checkpoints) == 1:
+        return f", checkpoint {checkpoints[0]}"
+    return f", checkpoints {', '.join(checkpoints[:-1])} and {checkpoints[-1]}"
+
+
+def add_results_options(p: argparse.ArgumentParser) -> None:
+    """--out and --update-tracked: where eval and bench write their tables."""
+    p.add_argument("--out", type=Path, metavar="MD", help="results markdown to update: its generated blocks only")
+    p.add_argument(
+        "--update-tracked",
+        action="store_true",
+        help="let --out rewrite a file git tracks (docs/RESULTS.md: regenerating the repository's tables)",
+    )
+
+
+def results_file(path: Path | None, update_tracked: bool = False) -> None:
+    """A results markdown to update must sit in an existing directory (it is created, never its parents), and one that
+    git tracks is rewritten only when asked."""
+    if path is None:
+        return
+    if not path.parent.is_dir():
         raise UsageError(f"--out {path}: directory {path.parent} does not exist")
+    if not update_tracked and tracked_by_git(path):
+        raise UsageError(f"--out {path} is tracked by git; pass --update-tracked to rewrite its generated blocks")
+
+
+def tracked_by_git(path: Path) -> bool:
+    """Whether git tracks `path` (False where git or a repository is missing)."""
+    try:
+        done = subprocess.run(
+            ["git", "ls-files", "--error-unmatch", "--", path.name],
+            cwd=path.parent,
+            capture_output=True,
+            check=False,
+        )
+    except OSError:
+        return False
+    return done.returncode == 0
 
 
 def add_network_options(p: argparse.ArgumentParser) -> None:
@@ -111,20 +151,22 @@ def add_network_options(p: argparse.ArgumentParser) -> None:
         type=float,
         default=defaults.GATE,
         metavar="G",
-        help=f"hybrid: F statistic (quadric vs plane) above which the network may answer (default {defaults.GATE:g})",
+        help="hybrid: where the network may answer. On an organized range image (the window survey) a window part "
+        "more than sqrt(G) standard errors off the window's plane; on other clouds (pools) a quadric that beats the "
+        f"plane by more than this F statistic (default {defaults.GATE:g})",
     )
     p.add_argument(
         "--bend",
         type=float,
         default=defaults.BEND,
         metavar="B",
-        help="hybrid: ... and the quadric's RMS departure from the plane, as a fraction of the radius, above which it "
-        f"does (default {defaults.BEND:g}; 0 leaves it to --gate)",
+        help="hybrid: ... and by more than this height, as a fraction of the radius: the window part's offset (range "
+        f"images) or the quadric's RMS departure (pools) (default {defaults.BEND:g}; 0 leaves it to --gate)",
     )
 
 
 def add_sensor_options(p: argparse.ArgumentParser) -> None:
-    """--range-scale and --keep-zeros: what a spinning LiDAR needs (README, "Sensor presets")."""
+    """--range-scale and --keep-zeros: what a spinning LiDAR needs (docs/NODE.md, "Sensor presets")."""
     p.add_argument(
         "--range-scale",
         type=float,

@@ -9,7 +9,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -227,7 +227,8 @@ def _convert(args: argparse.Namespace, bag, estimator=None) -> tuple[int, str]:
     resumed = f", resumed at input message {writer.resumed_at}" if writer.resumed_at else ""
     return clouds, (
         f"{args.input}{_part(args)}: {clouds} clouds on {args.topic} ({skipped} skipped){resumed}, {len(copied)} "
-        f"topics copied; {estimator.method}, radius {estimator.radius:g} m, {estimator.device}; "
+        f"topics copied; {estimator.method}{checks.served_words(answering.served)}, radius {estimator.radius:g} m, "
+        f"{estimator.device}; "
         f"{time.perf_counter() - began:.1f} s -> {args.output} ({storage}, {output_topic})"
     )
 
@@ -258,6 +259,8 @@ class _Answering:
     estimator: NormalEstimator
     settings: MessageSettings
     output_key: tuple[str, str]
+    #: The checkpoints that answered a cloud, in the order they first did (for the summary line).
+    served: list[str] = field(default_factory=list)
 
     def __call__(self, message, stop: threading.Event) -> memoryview:
         """The output message for one input cloud: the node's answer (`answer_message`), as a bag stores it."""
@@ -265,6 +268,9 @@ class _Answering:
         from ..pipeline.messages import answer_message
 
         answer = answer_message(as_message(decode_cloud(message)), self.estimator, self.settings, stop)
+        plan = self.estimator.last_run.plan
+        if plan is not None and plan.checkpoint and plan.checkpoint not in self.served:
+            self.served.append(plan.checkpoint)
         return encode_message(answer.message)
 
 

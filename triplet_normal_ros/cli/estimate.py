@@ -21,7 +21,8 @@ DESCRIPTION = """Estimate unit normals (and PCA curvature) for one point cloud. 
 --viewpoint is given, which flips each normal to face that point (PCL's flipNormalTowardsViewpoint).
 Without --out the normals go to IN with suffix .normals (never overwriting an existing file).
 Rows are NaN for points with fewer than 3 neighbours within the radius, whose neighbours determine no plane, or at
-exactly (0, 0, 0) (a LiDAR's no-returns; --keep-zeros to keep them). See docs/CLI.md."""
+exactly (0, 0, 0) (a LiDAR's no-returns; --keep-zeros to keep them). One summary line names the method, the
+checkpoint that served, the radius, device and search. See docs/CLI.md."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -110,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
         normals, curvature = _tiled(args, estimator, points, query, cloud.height)
     seconds = time.perf_counter() - start
     method, search = (estimator.method, "tiles on Ray") if tiled else (_method(estimator), estimator.last_run.search)
+    method += _checkpoint(estimator, tiled)
     if args.viewpoint is not None:
         from ..core.orientation import orient_towards_viewpoint
 
@@ -164,6 +166,17 @@ def _tiled(args: argparse.Namespace, estimator, points: np.ndarray, query: np.nd
     if failures:
         raise cluster.ClusterError(f"{len(failures)} of {len(tiles)} tiles failed: {failures[0]}")
     return normals[query], curvature[query]
+
+
+def _checkpoint(estimator, tiled: bool) -> str:
+    """The summary's words for the checkpoint that served: the one the plan ran; on tiles, each worker's choice."""
+    if tiled:
+        from ..core.config.plan import checkpoints_in_words
+
+        words = checkpoints_in_words(estimator.settings, estimator.device.type)
+        return f", checkpoint {words}" if words else ""
+    plan = estimator.last_run.plan
+    return checks.served_words([plan.checkpoint] if plan is not None and plan.checkpoint else [])
 
 
 def _method(estimator) -> str:

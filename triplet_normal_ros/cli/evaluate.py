@@ -1,6 +1,7 @@
 """`triplet-normal eval`: accuracy of the learned estimator against PCA (evaluation.evaluate does the work)."""
 
 import argparse
+import sys
 from pathlib import Path
 
 from ..core.config import defaults
@@ -17,8 +18,11 @@ DESCRIPTION = f"""MSAE (rad²) and RMSE (degrees) of the learned estimator, PCA 
 sets: the validation shapes (val), simulated depth frames of rooms (depth), close-range fold frames (fold), 32-beam
 LiDAR scans (lidar), a planar segmentation of fold frames by region growing (segment), every shipped checkpoint with
 learned and hybrid against PCA on the validation shapes, regime by regime (matrix), and the PCPNet shapes with
-0 / 0.12 / 0.6 / 1.2% noise (pcpnet). Prints the tables; with --out, also writes them into that markdown file and
-pictures into images/ beside it. See docs/CLI.md."""
+0 / 0.12 / 0.6 / 1.2% noise (pcpnet). The range sets (depth, fold, lidar) also score hybrid, PCA over windows and
+pools, and with the default checkpoint the lite and range checkpoints too. PCPNet does not ship with this package:
+without --sets, pcpnet is skipped, in one line, when --pcpnet-dir lacks its shapes. Prints the tables; with --out,
+also writes them into that markdown file and pictures into images/ beside it; a file git tracks (docs/RESULTS.md)
+only with --update-tracked. See docs/CLI.md."""
 
 #: Where the PCPNet shapes are looked for unless --pcpnet-dir says otherwise: beside the working directory.
 DEFAULT_PCPNET_DIR = Path("../shared/data/pcpnet")
@@ -39,14 +43,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help=f"PCPNet shapes (default: {DEFAULT_PCPNET_DIR}, relative to the working directory)",
     )
-    p.add_argument("--out", type=Path, metavar="MD", help="results markdown to update (e.g. docs/RESULTS.md)")
+    checks.add_results_options(p)
     p.add_argument("--quick", action="store_true", help="a small subset, for tests (not for reporting)")
     p.add_argument(
         "--sets",
-        default=",".join(SETS),
         metavar="S[,S...]",
-        help=f"which data sets to evaluate, comma-separated, from {', '.join(SETS)} (default: all); with --out only "
-        "their blocks are rewritten",
+        help=f"which data sets to evaluate, comma-separated, from {', '.join(SETS)} (default: all, pcpnet only where "
+        "--pcpnet-dir holds its shapes); a set named here whose data is missing is an error; with --out only their "
+        "blocks are rewritten",
     )
 
 
@@ -63,8 +67,8 @@ def run(args: argparse.Namespace) -> int:
 
     checks.at_least("points-per-cloud", args.points_per_cloud, 10)
     checks.device(args.device)
-    checks.results_file(args.out)
-    sets = _sets(args.sets)
+    checks.results_file(args.out, args.update_tracked)
+    sets = _sets(args.sets) if args.sets is not None else _default_sets(args.pcpnet_dir, args.quick)
     evaluate.run(
         checkpoint=args.checkpoint,
         device=args.device,
@@ -76,3 +80,18 @@ def run(args: argparse.Namespace) -> int:
         sets=sets,
     )
     return 0
+
+
+def _default_sets(pcpnet_dir: Path, quick: bool) -> tuple[str, ...]:
+    """Every set, less pcpnet when `pcpnet_dir` lacks its shapes (they do not ship), which one stderr line says."""
+    from ..evaluation.evaluate import pcpnet_missing
+
+    missing = pcpnet_missing(pcpnet_dir, quick)
+    if not missing:
+        return SETS
+    print(
+        f"triplet-normal eval: skipping pcpnet: {pcpnet_dir} lacks {', '.join(missing)} (PCPNet does not ship; "
+        "pass --pcpnet-dir DIR)",
+        file=sys.stderr,
+    )
+    return tuple(s for s in SETS if s != "pcpnet")

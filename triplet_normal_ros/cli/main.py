@@ -27,7 +27,7 @@ COMMANDS = (
     ("eval", evaluate, "accuracy tables vs PCA (and, with --out, into a results file)"),
     ("train", train, "train the encoder and regressor"),
     ("ablate", ablate, "the paper's ablations on the validation set"),
-    ("bench", bench, "points/s per stage on a synthetic 100k-point cloud"),
+    ("bench", bench, "points/s per stage of pca, learned and hybrid on a simulated depth frame and a torus"),
 )
 _HEAVY = ("train", "ablate")
 #: Optional modules, by the PyPI distribution that installs them (`pip install <it>`): a step that works on a native
@@ -81,7 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The full parser; the options of a heavy command are only built when it is `command`."""
-    parser = _Parser(prog=PROG, description="Learned (triplet) and PCA point-cloud normals, offline.")
+    parser = _Parser(prog=PROG, description="Learned (triplet), PCA and hybrid point-cloud normals, offline.")
     names = ",".join(name for name, _, _ in COMMANDS)
     commands = parser.add_subparsers(dest="command", required=True, metavar=f"{{{names}}}")
     for name, module, help_text in COMMANDS:

@@ -1,4 +1,5 @@
-"""`triplet-normal bench`: points/s per stage of the real inference path, every method side by side in one run.
+"""`triplet-normal bench`: points/s per stage of the real inference path, every method side by side in one run, with
+the default checkpoint and lite (`timed_methods`; the range checkpoint is timed by docs/tools/real_frame_speed.py).
 
 Two clouds: a simulated 640x480 depth frame (simulation.depth_camera, radius 0.05 m) and a noisy 100k-point torus
 (radius 5 % of its diagonal). Every method estimates the same fixed-seed subset of query points with neighbourhoods

@@ -259,9 +259,15 @@ def _segment_set(device: str, quick: bool, header: str, out: Path | None) -> Non
 
 def pcpnet_shapes_present(directory: Path) -> None:
     """Fail before the long validation run, not after it, when the PCPNet files are missing."""
-    missing = [s for s in PCPNET_SHAPES if not (directory / f"{s}.xyz").is_file()]
+    missing = pcpnet_missing(directory, quick=False)
     if missing:
         raise CloudFileError(f"{directory}: missing PCPNet shape(s) {', '.join(missing)} (pass --pcpnet-dir)")
+
+
+def pcpnet_missing(directory: Path, quick: bool) -> list[str]:
+    """The PCPNet shapes `directory` lacks for a run: any of the four, or with `quick` all of them (one will do)."""
+    missing = [s for s in PCPNET_SHAPES if not (directory / f"{s}.xyz").is_file()]
+    return missing if not quick or len(missing) == len(PCPNET_SHAPES) else []
 
 
 def _heatmap(results: list[CloudScores], path: Path) -> tuple[Path, CloudScores] | None:

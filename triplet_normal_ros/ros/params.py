@@ -123,8 +123,11 @@ SPECS: tuple[ParamSpec, ...] = (
         "gate",
         float,
         defaults.GATE,
-        "hybrid: the network answers where a quadric explains the neighbourhood better than PCA's plane by more than "
-        "this F statistic (about 1 on any flat surface); lower sends more points to the network.",
+        "hybrid: where the network answers. On an organized range image (the window survey, the default path for "
+        "camera and LiDAR frames) where a part of the window sits more than sqrt(gate) standard errors off the "
+        "window's plane (a z threshold; 3.16 at 10); on other clouds (pools) where a quadric explains the "
+        "neighbourhood better than PCA's plane by more than this F statistic (about 1 on any flat surface). Lower "
+        "sends more points to the network.",
         NON_NEGATIVE,
         accepted("gate"),
     ),
@@ -132,8 +135,9 @@ SPECS: tuple[ParamSpec, ...] = (
         "bend",
         float,
         defaults.BEND,
-        "hybrid: ... and where that quadric departs from the plane by more than this RMS height, as a fraction of "
-        "the ball's radius ('radius', grown by 'range_scale'; mild sensor waviness stays with PCA); 0 leaves the "
+        "hybrid: ... and where the departure is more than this height, as a fraction of the ball's radius "
+        "('radius', grown by 'range_scale'): on a range image the window part's offset from the plane, on other "
+        "clouds the quadric's RMS departure from it (mild sensor waviness stays with the plane fit); 0 leaves the "
         "choice to 'gate' alone.",
         NON_NEGATIVE,
         accepted("bend"),

@@ -22,21 +22,22 @@ DEPTH_RADIUS, LIDAR_RADIUS = 0.05, 0.25
 LIDAR_RANGE_SCALE = 0.03
 #: Fewer neighbours than this inside the ball gives a NaN row (PCL's convention: a plane needs three points).
 MIN_NEIGHBOURS = 3
-#: Hybrid sends a point to the network when a quadric explains its neighbourhood better than the PCA plane by more than
-#: this F statistic (about 1 on a flat surface at any noise level) ...
+#: Hybrid's gate, on its two surveys. Over pools (any cloud that is not an organized range image) the network answers
+#: where a quadric explains the neighbourhood better than the PCA plane by more than HYBRID_GATE, an F statistic
+#: (about 1 on a flat surface at any noise level), ...
 HYBRID_GATE = 10.0
-#: ... and departs from the plane by more than this RMS height, in units of the radius (a systematic millimetre of
-#: waviness in a 5 cm ball is significant but harmless). Both chosen in docs/RESULTS.md (`docs/tools/gate_study.py`).
+#: ... and departs from the plane by more than HYBRID_BEND, an RMS height in units of the radius (a systematic
+#: millimetre of waviness in a 5 cm ball is significant but harmless). On an organized range image the survey is the
+#: integral-image window (core/range_image/survey.py) and the gate reads the window's parts instead: the network
+#: answers where a part's centroid sits off the survey's plane by more than sqrt(gate) standard errors
+#: (`survey.window_z`, a z threshold) and by more than bend radii (`survey.opens`). The pool values were chosen with
+#: docs/tools/gate_study.py, the window's with docs/tools/window_gate_study.py and lattice_study.py, on seeds eval does
+#: not score.
 HYBRID_BEND = 0.03
-#: On an organized cloud hybrid's survey is the integral-image window (core/integral.py), and its gate reads the
-#: window's parts (`MomentImage.structure`) instead of a quadric over a pool: the network answers where a part's
-#: centroid sits off the survey's plane by more than sqrt(gate) standard errors (`survey.window_z`) and by more than
-#: bend radii. Chosen in docs/RESULTS.md (docs/tools/window_gate_study.py and lattice_study.py, on seeds eval does not
-#: score).
 #: Neighbour searches: 'kdtree' (CPU), 'grid' (organized clouds only; falls back to the KD-tree), 'voxel' (sorted cell
-#: lists on the device, any cloud), 'window' (organized clouds, pca only: integral-image windows, O(1) per pixel; falls
-#: back like 'grid'), 'auto' (the window for whole-ball pca on an organized cloud; otherwise on CUDA the grid for
-#: organized clouds, else voxel; the KD-tree on a CPU).
+#: lists on the device, any cloud), 'window' (organized range images: integral-image windows, O(1) per pixel, for
+#: pca and for hybrid's survey; falls back like 'grid'), 'auto' (the window for whole-ball pca and hybrid's survey on
+#: an organized range image; otherwise on CUDA the grid for organized clouds, else voxel; the KD-tree on a CPU).
 NEIGHBOUR_SEARCHES = ("auto", "kdtree", "grid", "voxel", "window")
 #: PCA's neighbour cap when no k is given: large enough to be the whole ball for typical depth-camera radii.
 PCA_DEFAULT_K = 500

@@ -7,14 +7,14 @@ that bracket it (up to four, at most STRIDE - 1 pixels away on each axis). Where
 every answer lies within AGREE_DEGREES of their sign-aligned mean, the pixel takes that mean; where they disagree (it
 sits across a fold from some of them), or fewer than two answered (a band one pixel wide), the network answers it on
 its own pool. The mean of agreeing answers also averages the network's own noise: on frames eval never scores this is
-as accurate as the network on every gated pixel, at 40 % of its passes at 10° and a fifth fewer at 25° (docs/RESULTS.md,
+as accurate as the network on every gated pixel, at 40 % of its passes at 10° and a fifth fewer at 25° (docs/HISTORY.md,
 "The network on a lattice").
 
 The lattice's own pixels are answered the same way one level up: those off the coarser lattice (every COARSE_STRIDE-th
 row and column) take the mean of their gated coarse neighbours where those agree within the tighter
 COARSE_AGREE_DEGREES, else the network. A real depth camera's noise opens the gate on wide patches of a surface, where
 this cuts a quarter to two fifths of the passes; at folds the coarse neighbours disagree and the finer rule stands
-(docs/RESULTS.md, "The gate reads the fitted windows too").
+(docs/HISTORY.md, "The gate reads the fitted windows too").
 
 A pixel that takes its neighbours' mean never opens its own pool, so where that pool would have given no answer (it
 lies on one scan line) the pixel has the neighbours' network answer instead of the survey's; both are planes its

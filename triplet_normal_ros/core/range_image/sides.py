@@ -13,7 +13,7 @@ replaces the answer. The network decides which face the pixel is on; the part gi
 face the parts fit little better than the whole window, and the answer stands.
 
 On fold frames of seeds eval never scores this took the node's segmentation ARI from 0.15 to 0.98 with less error
-overall and near edges (docs/RESULTS.md, "Sharp folds"). It runs on the gated pixels only; a compiled image takes the
+overall and near edges (docs/HISTORY.md, "Sharp folds"). It runs on the gated pixels only; a compiled image takes the
 compiled twin (`sides_numba.snap_to_sides`, the same answers to roundoff: test_fused.py).
 """
 

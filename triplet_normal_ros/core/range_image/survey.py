@@ -35,7 +35,7 @@ def window_z(gate: float) -> float:
 
     On a plane the parts' largest z is about 1-3 whatever the noise, so the bend decides where the network answers
     and the z only keeps noise-sized departures out; a higher z leaves folds that bend a window by more than the bend
-    but by few standard errors to the survey (docs/RESULTS.md, "The window gate, re-tuned with the lattice")."""
+    but by few standard errors to the survey (docs/HISTORY.md, "The window gate, re-tuned with the lattice")."""
     return gate**0.5
 
 
@@ -61,7 +61,7 @@ def survey_on_slope(
     would read as a slope that is not there. The gate reads both windows' cues: the first window's parts see a fold
     beside the ball, the fitted window's parts see one the survey's own answer straddles, which the first window,
     sized for a frontal surface, can average away. Measured on fold and room frames eval never scores:
-    docs/RESULTS.md, "Folds" and "The gate reads the fitted windows too".
+    docs/HISTORY.md, "Folds" and "The gate reads the fitted windows too".
     """
     first = torch.where(fit.valid.unsqueeze(-1), survey, 0.0)
     sloped = image.pca_on_slope(first)

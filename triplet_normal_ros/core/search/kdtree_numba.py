@@ -1,7 +1,7 @@
 """A compiled KD-tree for the pool path on a CPU: the nearest k points strictly inside a ball, sorted by distance.
 
 scipy's cKDTree answered these searches before; on a 640 × 480 depth frame at k = 30 its query alone took longer than
-Open3D's whole normal estimate (docs/RESULTS.md, "A compiled KD-tree"). This tree is a nanoflann-class search in numba:
+Open3D's whole normal estimate (docs/HISTORY.md, "A compiled KD-tree"). This tree is a nanoflann-class search in numba:
 
 * **Layout.** A balanced tree of fixed depth, its nodes in heap order (children 2i + 1, 2i + 2), each split at the
   median of its widest axis, every leaf holding LEAF_SIZE / 2 to LEAF_SIZE points (a cloud of fewer is one leaf).

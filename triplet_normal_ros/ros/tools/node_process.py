@@ -41,8 +41,9 @@ def params_file(
     """A parameter file for the node; `reliable_topics` get a reliable subscription QoS override (and a history of
     `depth` clouds, when given).
 
-    Without an override full frames take the default, best-effort path (README, QoS), as from a camera driver; a
-    tool that publishes faster than the node answers makes its input reliable so that what it sends arrives.
+    Without an override full frames take the default, best-effort path (docs/NODE.md, "Topics and QoS"), as from a
+    camera driver; a tool that publishes faster than the node answers makes its input reliable so that what it sends
+    arrives.
     """
     lines = ["/**:", "  ros__parameters:"] + [f"    {k}: {yaml_value(v)}" for k, v in params.items()]
     if reliable_topics:
