@@ -86,8 +86,8 @@ test: venv lint
 # (full 640x480 frames from another process), parameters, the launch file, the per-message step and `bag`.
 JAZZY_TESTS := test/ros/test_transport.py test/ros/test_large_clouds.py test/ros/test_node_process.py \
 	test/ros/test_params.py test/ros/test_one_rule.py test/test_launch.py test/ros/test_launch_process.py \
-	test/ros/test_managed_node.py test/ros/test_watchdog_exit.py test/ros/test_visuals_process.py test/pipeline \
-	test/cli/test_bag.py
+	test/ros/test_managed_node.py test/ros/test_watchdog_exit.py test/ros/test_stop_while_starting.py \
+	test/ros/test_visuals_process.py test/pipeline test/cli/test_bag.py
 test-jazzy: venv-jazzy
 	$(JAZZY_PY) -m pytest $(JAZZY_TESTS) -q --strict-markers
 

@@ -33,8 +33,8 @@ setup(
     license="BSD-3-Clause",
     entry_points={
         "console_scripts": [
-            f"node = {PACKAGE}.ros.node:main",
-            f"managed_node = {PACKAGE}.ros.managed_node:main",
+            f"node = {PACKAGE}.ros.entry:node",
+            f"managed_node = {PACKAGE}.ros.entry:managed_node",
             f"triplet-normal = {PACKAGE}.cli.main:main",
         ],
     },

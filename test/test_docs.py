@@ -94,6 +94,10 @@ ALLOWED: dict[tuple[str, str], tuple[str, Callable[[], set[float]]]] = {
         lambda: {_constant("ros/serving.py", "SERVE_POLL_S")},
     ),
     ("1.5", "s"): ("the shutdown watchdog's wait", lambda: {_constant("ros/serving.py", "JOIN_TIMEOUT_S")}),
+    ("0.3", "s"): (
+        "how long a stop during the start waits for the main thread's next check",
+        lambda: {_constant("ros/stopper.py", "START_GRACE_S")},
+    ),
     ("20", "s"): (
         "how long `--address` waits for a connection",
         lambda: {_constant("cli/cluster.py", "CONNECT_TIMEOUT_S")},

@@ -128,8 +128,10 @@ def test_its_package_and_executable_are_setup_pys_package_and_node_console_scrip
     assert args["executable"] in scripts, f"{args['executable']!r} is not one of setup.py's scripts {sorted(scripts)}"
     assert args["executable"] == "node"  # the node's script (ros2 run triplet_normal_ros node), not the CLI's
     target, function = scripts[args["executable"]].split(":")
-    started = importlib.import_module(target)  # the node module: the name the launch file gives is its NODE_NAME
-    assert callable(getattr(started, function)) and started.NODE_NAME == args["name"] == NODE_NAME
+    entry = importlib.import_module(target)  # takes the signals first, then imports the node module it names
+    assert callable(getattr(entry, function)) and entry.NODE_NAME == args["name"] == NODE_NAME
+    started = importlib.import_module(entry.NODES[function])  # the name the launch file gives is its NODE_NAME
+    assert started.NODE_NAME == NODE_NAME
 
 
 class _Recorded:

@@ -1,10 +1,13 @@
 """The start-up throughput probe: a real measurement of the estimator on its device, in words a user can act on."""
 
+import threading
+
 import numpy as np
 import pytest
 
 from triplet_normal_ros.core import throughput
 from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.errors import EstimationCancelled
 
 
 def test_probe_cloud_is_an_organized_room_corner_at_the_estimators_scale() -> None:
@@ -33,6 +36,14 @@ def test_the_probe_runs_the_path_an_organized_frame_takes() -> None:
     assert throughput.measure(NormalEstimator("pca", radius=0.05, k=30, device="cpu")).search == "kdtree"
     text = throughput.measure(NormalEstimator("pca", radius=0.05, device="cpu")).describe("cpu")
     assert "integral-image windows" in text
+
+
+def test_a_set_cancel_event_ends_the_probe_before_it_compiles_or_estimates() -> None:
+    """The node's stop during its start: the probe raises instead of finishing (the node then leaves)."""
+    stop = threading.Event()
+    stop.set()
+    with pytest.raises(EstimationCancelled):
+        throughput.measure(NormalEstimator("pca", radius=0.05, device="cpu"), cancel=stop)
 
 
 def test_pca_is_measured_faster_than_learned_and_hybrid_reports_its_share() -> None:

@@ -31,12 +31,13 @@ import sys, threading
 import rclpy
 from rclpy.signals import SignalHandlerOptions
 from triplet_normal_ros.ros.node import TripletNormalNode
-from triplet_normal_ros.ros.runner import _install_stop_handlers
+from triplet_normal_ros.ros.runner import guard_serving
+from triplet_normal_ros.ros.stopper import STOPPER
 
+STOPPER.install("triplet_normal")
 rclpy.init(args=sys.argv, signal_handler_options=SignalHandlerOptions.NO)
-stop = threading.Event()
 served = TripletNormalNode(serve_in_caller=True)
-_install_stop_handlers(stop, served)
+guard_serving(STOPPER, served)
 print("serving: blocked", flush=True)
 threading.Event().wait()
 """

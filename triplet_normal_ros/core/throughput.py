@@ -11,11 +11,13 @@ frame several times too slow. The difference between the two is the cost per poi
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import EstimationCancelled
 from .config.plan import Plan, compiled
 from .estimator import NormalEstimator
 from .learned import patches_numba, scales_numba
@@ -77,21 +79,29 @@ class Throughput:
         )
 
 
-def measure(estimator: NormalEstimator, seed: int = 0, points_dominate_s: float = POINTS_DOMINATE_S) -> Throughput:
+def measure(
+    estimator: NormalEstimator,
+    seed: int = 0,
+    points_dominate_s: float = POINTS_DOMINATE_S,
+    cancel: threading.Event | None = None,
+) -> Throughput:
     """The cost per point and per call of `estimator` on the probe images (its settings unchanged); a coarse probe
-    over `points_dominate_s` is timed once and alone."""
+    over `points_dominate_s` is timed once and alone. EstimationCancelled once `cancel` is set: it is checked
+    between the kernels' modules, whose first compilation takes seconds each, and inside each estimate."""
     coarse, fine = probe_cloud(estimator.radius, seed), probe_cloud(estimator.radius, seed, FINE_PROBE_SHAPE)
     start = time.perf_counter()
     if compiled(estimator.device.type):  # every compiled kernel, whichever the method: a reload finds them ready
         for kernels in (check_numba, survey_numba, sides_numba, pools_numba, patches_numba, scales_numba, kdtree_numba):
+            if cancel is not None and cancel.is_set():
+                raise EstimationCancelled("the throughput probe was cancelled")
             kernels.warm()
-    estimator.estimate(coarse, shape=PROBE_SHAPE)  # warm-up: first-call allocations, thread pools
+    estimator.estimate(coarse, cancel=cancel, shape=PROBE_SHAPE)  # warm-up: first-call allocations, thread pools
     warm_up = time.perf_counter() - start
-    coarse_s = _fastest(estimator, coarse, PROBE_SHAPE, points_dominate_s)
+    coarse_s = _fastest(estimator, coarse, PROBE_SHAPE, points_dominate_s, cancel)
     fine_s = None
     if coarse_s <= points_dominate_s:
-        estimator.estimate(fine, shape=FINE_PROBE_SHAPE)  # the larger image's buffers, before it is timed
-        fine_s = _fastest(estimator, fine, FINE_PROBE_SHAPE, points_dominate_s)
+        estimator.estimate(fine, cancel=cancel, shape=FINE_PROBE_SHAPE)  # the larger image's buffers, before timing
+        fine_s = _fastest(estimator, fine, FINE_PROBE_SHAPE, points_dominate_s, cancel)
     run = estimator.last_run
     rate, per_call = split(len(coarse), coarse_s, len(fine), fine_s)
     return Throughput(rate, run.network_fraction, run.plan, warm_up, per_call)
@@ -109,13 +119,19 @@ def split(coarse_points: int, coarse_s: float, fine_points: int, fine_s: float |
     return 1.0 / per_point, max(coarse_s - per_point * coarse_points, 0.0)
 
 
-def _fastest(estimator: NormalEstimator, cloud: np.ndarray, shape: tuple[int, int], points_dominate_s: float) -> float:
+def _fastest(
+    estimator: NormalEstimator,
+    cloud: np.ndarray,
+    shape: tuple[int, int],
+    points_dominate_s: float,
+    cancel: threading.Event | None = None,
+) -> float:
     """The fastest of TIMED_CALLS estimates of `cloud`, in seconds; the first alone when it takes over
     `points_dominate_s`, so that a slow method does not slow start-up further."""
     times: list[float] = []
     while len(times) < TIMED_CALLS and not (times and times[0] > points_dominate_s):
         start = time.perf_counter()
-        estimator.estimate(cloud, shape=shape)
+        estimator.estimate(cloud, cancel=cancel, shape=shape)
         times.append(time.perf_counter() - start)
     return max(min(times), 1e-9)
 

@@ -19,6 +19,7 @@ as the plain node (docs/NODE.md, "Managed node (lifecycle)").
 
 from __future__ import annotations
 
+import threading
 from typing import Any, NoReturn
 
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -33,11 +34,18 @@ class ManagedNode(ServingMixin, LifecycleNode):
     """``triplet_normal`` as a lifecycle node; starts unconfigured. The worker runs in a thread of its own, or, with
     ``serve_in_caller``, in whoever calls `serve` (the console entry point: the process's main thread)."""
 
-    def __init__(self, serve_in_caller: bool = False, **kwargs: Any) -> None:
+    def __init__(self, serve_in_caller: bool = False, start: bool = True, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.get_logger().info(f"running triplet_normal_ros from {package_location()}")
         self._init_serving()
-        if not serve_in_caller:
+        self._serve_in_caller = serve_in_caller
+        if start:
+            self.start()
+
+    def start(self, stop: threading.Event | None = None) -> None:
+        """Wait for the configure transition (which does the plain node's warm-up, cancelled by a stop like an
+        estimate); `stop` is the console entry point's, as for the plain node."""
+        if not self._serve_in_caller:
             self._start_worker()
         self.get_logger().info("unconfigured: waiting for the configure transition")
 
@@ -52,7 +60,7 @@ class ManagedNode(ServingMixin, LifecycleNode):
         """Load the estimator; the publishers are made on the first configure and kept (they send nothing while
         inactive), so an estimate still finishing after a cleanup never publishes through a destroyed one."""
         try:
-            active = self._configure()
+            active = self._configure(self._cancel)
             if self._publisher is None:
                 self._create_outputs(self.create_lifecycle_publisher, self.destroy_lifecycle_publisher)
         except Exception as error:  # rclpy would swallow it silently: say why, and stay unconfigured

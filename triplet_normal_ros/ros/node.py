@@ -9,6 +9,7 @@ shutdown.
 
 from __future__ import annotations
 
+import threading
 from typing import Any, NoReturn
 
 from rclpy.node import Node
@@ -27,19 +28,27 @@ class TripletNormalNode(ServingMixin, Node):
 
     The worker runs in a thread of its own, or, with ``serve_in_caller``, in whoever calls `serve` (the console node
     calls it from the process's main thread, where torch's OpenMP teams run faster: docs/RESULTS.md, "Organized
-    clouds", the node's overhead).
+    clouds", the node's overhead). With ``start=False`` the constructor only makes the node, and `start` does the
+    rest: the console node starts it with its stop event, so that a stop during the warm-up ends the start.
     """
 
-    def __init__(self, serve_in_caller: bool = False, **kwargs: Any) -> None:
+    def __init__(self, serve_in_caller: bool = False, start: bool = True, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.get_logger().info(f"running triplet_normal_ros from {package_location()}")
         self._init_serving()
-        self._active = self._configure()
+        self._serve_in_caller = serve_in_caller
+        if start:
+            self.start()
+
+    def start(self, stop: threading.Event | None = None) -> None:
+        """Configure (load the checkpoint, warm the kernels, measure the throughput), then subscribe and publish;
+        EstimationCancelled, between stages, once `stop` is set."""
+        self._active = self._configure(stop)
         self._create_outputs(self.create_publisher, self.destroy_publisher)
         self._subscribe()
         self._start_stats()
         self._visuals.start()
-        if not serve_in_caller:
+        if not self._serve_in_caller:
             self._start_worker()
         self.get_logger().info(f"ready: {self._ready_line()}")
 

@@ -140,12 +140,13 @@ class ServingMixin:
 
     # -- parameters and the estimator -------------------------------------------------------------------------------
 
-    def _configure(self) -> tuple[NormalEstimator, NodeSettings]:
+    def _configure(self, stop: threading.Event | None = None) -> tuple[NormalEstimator, NodeSettings]:
         """Parameters to an estimator: declare and validate them, build it, say what a frame will cost; ConfigError
-        with the reason when that cannot be done."""
+        with the reason when that cannot be done, EstimationCancelled between stages once `stop` is set (the warm-up
+        compiles the kernels for half a minute on a first start)."""
         settings = self._declare_parameters()
         estimator = self._build(settings, ConfigError)
-        self._log_expected_throughput(estimator)  # before the worker sees it: the probe uses the estimator alone
+        self._log_expected_throughput(estimator, stop)  # before the worker sees it: the probe uses the estimator alone
         return estimator, settings
 
     def _declare_parameters(self) -> NodeSettings:
@@ -181,10 +182,15 @@ class ServingMixin:
         except RuntimeError as error:  # torch itself, e.g. CUDA out of memory while moving the model
             raise error_type(f"could not build the estimator: {error}") from None
 
-    def _log_expected_throughput(self, estimator: NormalEstimator) -> None:
-        """Measure the estimator on a small probe cloud and say what a full frame will cost on this device."""
+    def _log_expected_throughput(self, estimator: NormalEstimator, stop: threading.Event | None = None) -> None:
+        """Measure the estimator on a small probe cloud and say what a full frame will cost on this device; a stop
+        ends the probe (EstimationCancelled)."""
+        # Said before the probe: on a CPU a first start compiles the kernels in it, for half a minute.
+        self.get_logger().info(f"measuring the expected throughput on {estimator.device}")
         try:
-            rate = throughput.measure(estimator)
+            rate = throughput.measure(estimator, cancel=stop)
+        except EstimationCancelled:
+            raise
         except Exception as error:  # a probe failure must never stop the node; the first real cloud will tell
             self.get_logger().warning(f"could not measure the expected throughput: {error}")
             return
