@@ -27,7 +27,7 @@ class TripletNormalNode(ServingMixin, Node):
     """Subscribes to ``input``, publishes ``output``; raises StartupError when it cannot run.
 
     The worker runs in a thread of its own, or, with ``serve_in_caller``, in whoever calls `serve` (the console node
-    calls it from the process's main thread, where torch's OpenMP teams run faster: docs/RESULTS.md, "Organized
+    calls it from the process's main thread, where torch's OpenMP teams run faster: docs/HISTORY.md, "Organized
     clouds", the node's overhead). With ``start=False`` the constructor only makes the node, and `start` does the
     rest: the console node starts it with its stop event, so that a stop during the warm-up ends the start.
     """

@@ -7,7 +7,7 @@ ros/entry.py). A stop while the node starts (the first start compiles the kernel
 with exit code 0 within 2 s: the node is built without starting, its `start` checks the stop between stages, and a
 main thread inside one long compile is left behind by the stopper's timer; either way the node and rclpy are shut
 down first, which removes the DDS shared-memory segment. The worker serves in the process's main thread, where
-torch's OpenMP teams run faster (docs/RESULTS.md, "Organized clouds", the node's overhead). See docs/NODE.md,
+torch's OpenMP teams run faster (docs/HISTORY.md, "Organized clouds", the node's overhead). See docs/NODE.md,
 "Shutdown", for the order of a shutdown and the exit codes.
 """
 
