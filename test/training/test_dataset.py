@@ -170,6 +170,15 @@ def test_corrupt_cache_entry_is_regenerated(tmp_path) -> None:
     assert td._load(entry, N) is not None
 
 
+def test_a_cached_sample_is_not_read_after_its_source_changes(tmp_path, monkeypatch) -> None:
+    """The cache key holds the digest of the shapes' and the sampling's source: with another digest (an edited
+    module) the cached file is not found, and a new one is written beside it."""
+    td.build_dataset("val", N, seed=0, cache_dir=tmp_path, shapes=["frustum"], noise_levels=(0.0,))
+    monkeypatch.setattr(td, "SOURCE_DIGEST", "0" * 64)
+    td.build_dataset("val", N, seed=0, cache_dir=tmp_path, shapes=["frustum"], noise_levels=(0.0,))
+    assert len(list(tmp_path.glob("frustum-*.npz"))) == 2
+
+
 def test_cache_dir_from_environment(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "env"))
     assert default_cache_dir() == tmp_path / "env"

@@ -20,12 +20,27 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import TrainingError
+from ..simulation import seeds
 from ..simulation.cache import default_cache_dir, writable_cache
 from ..simulation.seeds import derive_seed
+from . import shapes
 from .shapes import ShapeSpec, catalogue
 
 NOISE_LEVELS: tuple[float, ...] = (0.0, 0.0025, 0.005, 0.01, 0.015, 0.025)  # clean + the paper's five, × bbox diagonal
-CODE_VERSION = 1  # bump when sampling or a shape changes, so stale cache entries are never read
+
+
+def _source_digest() -> str:
+    """SHA-256 of the modules a clean sample is a function of (the shapes, the sampling here, the seed derivation):
+    any edit to them changes every cache key, so no stale cloud is read and no version number is kept by hand."""
+    digest = hashlib.sha256()
+    for path in (Path(shapes.__file__), Path(__file__), Path(seeds.__file__)):
+        source = path.resolve().read_bytes()
+        digest.update(f"{path.name}\n{len(source)}\n".encode() + source)
+    return digest.hexdigest()
+
+
+#: Part of every cache key: the samples' source.
+SOURCE_DIGEST = _source_digest()
 
 
 @dataclass
@@ -85,7 +100,7 @@ def add_noise(points: np.ndarray, sigma_rel: float, seed: int) -> np.ndarray:
 
 
 def _cache_key(spec: ShapeSpec, n_points: int, seed: int) -> str:
-    blob = json.dumps([spec.name, spec.kind, spec.builder, spec.params, n_points, seed, CODE_VERSION], default=str)
+    blob = json.dumps([spec.name, spec.kind, spec.builder, spec.params, n_points, seed, SOURCE_DIGEST], default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
@@ -149,7 +164,7 @@ def build_dataset(
 ) -> list[LabelledCloud]:
     """Every (shape, noise level) cloud of a split, shape-major: 22 × 6 = 132 for 'train'.
 
-    Only the clean sample of each shape is cached (`.npz`, keyed by shape, params, n, seed and CODE_VERSION); the
+    Only the clean sample of each shape is cached (`.npz`, keyed by shape, params, n, seed and SOURCE_DIGEST); the
     noisy variants are redrawn from their own seed, which costs milliseconds and keeps the cache 6× smaller. The
     noisy clouds of a shape share one read-only normals array.
     """
