@@ -29,14 +29,7 @@ import torch
 from triplet_normal_ros.core.config import defaults
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.range_image.check import inspect_grid
-from triplet_normal_ros.core.range_image.image import (
-    ONE_SIDED,
-    MomentImage,
-    _largest_clear,
-    _pixel_grid,
-    _window_pca,
-    box_sums,
-)
+from triplet_normal_ros.core.range_image.image import MomentImage, box_pca
 from triplet_normal_ros.core.range_image.survey import (
     PART_SPAN,
     opens,
@@ -57,17 +50,13 @@ RADIUS = 0.05
 def one_sided(image: MomentImage) -> tuple[torch.Tensor, torch.Tensor]:
     """Per pixel, the ray-noise normal and score of its best half or quarter window (least smallest eigenvalue plus
     squared distance of the pixel from the part's plane, among the valid parts); call after `image.pca`."""
-    half_row, half_col, walls, reach = image._sizing
-    row, col = _pixel_grid(image.height, image.width, half_row.device)
-    best_normal = torch.full((len(row), 3), torch.nan, dtype=torch.float64)
-    best_residual = torch.full((len(row),), torch.inf, dtype=torch.float64)
-    for sides in ONE_SIDED:
-        box, _ = _largest_clear(
-            row, col, half_row.reshape(-1), half_col.reshape(-1), sides, walls, image.height, image.width
-        )
-        box = tuple(b for b in box)
-        sums = box_sums(image.table, *box)
-        fit = _window_pca(sums, image.offset, box, reach, image._spans_lines(box, sums[:, 0]))
+    pixels = np.arange(image.height * image.width)
+    row, col = torch.from_numpy(pixels) // image.width, torch.from_numpy(pixels) % image.width
+    reach = image._sizing[3]
+    best_normal = torch.full((len(pixels), 3), torch.nan, dtype=torch.float64)
+    best_residual = torch.full((len(pixels),), torch.inf, dtype=torch.float64)
+    for box in image.one_sided_boxes(pixels).unbind(0):
+        fit = box_pca(image.table, image.counts, image.offset, tuple(box.unbind(0)), row, col, reach)
         normal = ray_noise_normal(fit)
         # The pixel's own distance from the part's plane: a part that lies on another face fits that face well but
         # does not pass through the pixel.

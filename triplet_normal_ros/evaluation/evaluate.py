@@ -17,13 +17,13 @@ from ..core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagona
 from ..errors import CloudFileError
 from ..io.cloud_files import read_normals_file, read_points
 from . import matrix_eval, segment_eval
-from .metrics import angles_rad, invalid_count, msae, ratio_interval, rmse_deg
+from .metrics import QUERY_SEED, angles_rad, invalid_count, msae, query_indices, ratio_interval, rmse_deg
 from .report import update_section
 
 PCA_GRID = (0.01, 0.02, 0.03, 0.04, 0.05, 0.07, 0.10)
 PCPNET_SHAPES = ("cube100k", "fandisk100k", "bunny100k", "armadillo100k")
 PCPNET_NOISE = (0.0, 0.0012, 0.006, 0.012)
-QUERY_SEED, NOISE_SEED = 0, 1
+NOISE_SEED = 1
 HEATMAP = ("fandisk100k", 0.012)
 #: --quick: two validation shapes at two noise levels, two noise levels on PCPNet; for tests only.
 QUICK_VAL_SHAPES, QUICK_NOISE, QUICK_POINTS = ("v_notch_block", "ellipsoid_flat"), (0.0, 0.01), 5000
@@ -93,11 +93,6 @@ def _scores(pred: np.ndarray, angles: np.ndarray) -> tuple[float, float, int]:
     """MSAE, RMSE° and NaN count from per-point angles (`metrics.angles_rad`), computed once per method."""
     mse = float(np.mean(angles**2))
     return mse, float(np.degrees(np.sqrt(mse))), invalid_count(pred)
-
-
-def query_indices(n: int, count: int) -> np.ndarray:
-    """The fixed query subset: numpy.random.default_rng(0).choice(n, count, replace=False), sorted."""
-    return np.sort(np.random.default_rng(QUERY_SEED).choice(n, min(n, count), replace=False))
 
 
 # ---------------------------------------------------------------- data sets
@@ -227,7 +222,8 @@ def run(
     if "segment" in sets:
         _segment_set(device, quick, header, out)
     if "matrix" in sets:
-        markdown = matrix_eval.run_matrix(device, quick, command + (" (--quick subset: not a result)" if quick else ""))
+        clouds, label = validation_clouds(quick), command + (" (--quick subset: not a result)" if quick else "")
+        markdown = matrix_eval.run_matrix(device, clouds, label)
         print(markdown)
         if out is not None:
             update_section(out, "eval-matrix", markdown)

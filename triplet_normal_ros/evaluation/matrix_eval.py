@@ -20,12 +20,11 @@ from ..core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagona
 from ..core.config.defaults import SHIPPED_FOR_DEVICE
 from ..core.estimator import NormalEstimator
 from ..core.learned.checkpoint import SHIPPED
-from ..training.dataset import NOISE_LEVELS, build_dataset
-from .metrics import angles_rad
+from ..training.dataset import LabelledCloud
+from .metrics import QUERY_SEED, angles_rad, query_indices
 
-#: Points per validation cloud (as `val`), and query points per cloud (fixed seed): fewer than `val`'s, for six
-#: estimators per cloud.
-FULL_POINTS, QUERIES = 100_000, 1000
+#: Query points per cloud (`metrics.query_indices`, as `val`'s): fewer than `val`'s, for the estimators per cloud.
+QUERIES = 1000
 #: PCA's neighbourhood: the whole 5 % ball, up to this many nearest points (the default checkpoint's pool).
 PCA_POOL = 512
 #: The regimes, as (label, kind or None for both, noise levels × the bbox diagonal).
@@ -36,8 +35,6 @@ REGIMES = (
     ("both, 1.5 and 2.5 % noise", None, (0.015, 0.025)),
 )
 METHODS = ("learned", "hybrid")
-#: --quick (tests only): two shapes at two noise levels, 5000 points each.
-QUICK_SHAPES, QUICK_NOISE, QUICK_POINTS, QUICK_QUERIES = ("v_notch_block", "ellipsoid_flat"), (0.0, 0.01), 5000, 200
 
 
 @dataclass
@@ -66,22 +63,14 @@ def matrix_estimators(device: str) -> dict[tuple[str, str], NormalEstimator]:
     return rows
 
 
-def evaluate_matrix(device: str, quick: bool) -> list[CloudRow]:
+def evaluate_matrix(device: str, clouds: list[LabelledCloud]) -> list[CloudRow]:
     """Every validation cloud (normalised to diagonal 1) scored by PCA and by each estimator at the same queries."""
-    if quick:
-        clouds = build_dataset("val", QUICK_POINTS, 0, shapes=QUICK_SHAPES, noise_levels=QUICK_NOISE, progress=False)
-    else:
-        clouds = build_dataset("val", FULL_POINTS, 0, noise_levels=NOISE_LEVELS, progress=False)
     estimators = matrix_estimators(device)
     pca = NormalEstimator("pca", radius=RADIUS_FRACTION, device=device)
     rows = []
     for cloud in tqdm(clouds, desc="eval matrix", unit="cloud", disable=None, file=sys.stderr):
         points = np.asarray(cloud.points, dtype=np.float64)
-        query = np.sort(
-            np.random.default_rng(0).choice(
-                len(points), min(len(points), QUICK_QUERIES if quick else QUERIES), replace=False
-            )
-        )
+        query = query_indices(len(points), QUERIES)
         exact = cloud.normals[query]
         radius = RADIUS_FRACTION * bbox_diagonal(points)
         counts = cKDTree(points).query_ball_point(points[query], radius, return_length=True, workers=-1)
@@ -95,7 +84,7 @@ def evaluate_matrix(device: str, quick: bool) -> list[CloudRow]:
     return rows
 
 
-def matrix_markdown(rows: list[CloudRow], command: str, seconds: float, quick: bool = False) -> str:
+def matrix_markdown(rows: list[CloudRow], command: str, seconds: float, points: int, queries: int) -> str:
     """The block: one row per regime, one column per (method, checkpoint), each MSAE over PCA's (means over the
     regime's clouds), the CPU and GPU defaults marked."""
     keys = list(rows[0].methods) if rows else []
@@ -111,10 +100,10 @@ def matrix_markdown(rows: list[CloudRow], command: str, seconds: float, quick: b
         "## Every checkpoint against PCA, regime by regime (`triplet-normal eval`)",
         "",
         f"Command: `{command}`",
-        f"Clouds: the validation shapes (never trained on), {QUICK_POINTS if quick else FULL_POINTS} points each, "
-        f"{QUICK_QUERIES if quick else QUERIES} query points per cloud "
-        f"(`default_rng(0)`), r = {RADIUS_FRACTION:.0%} of the bbox diagonal. Each cell: the method's MSAE over PCA's "
-        f"(the whole ball, up to {PCA_POOL} nearest points), means over the regime's clouds; above 1 loses to PCA. "
+        f"Clouds: the validation shapes (never trained on), {points} points each, {queries} query points per cloud "
+        f"(`default_rng({QUERY_SEED})`), r = {RADIUS_FRACTION:.0%} of the bbox diagonal. Each cell: the method's MSAE "
+        f"over PCA's (the whole ball, up to {PCA_POOL} nearest points), means over the regime's clouds; above 1 "
+        "loses to PCA. "
         "With no checkpoint named, these clouds get `lite` on a CPU and `default` on a GPU; range images get `range` "
         "on a CPU (the depth, fold and LiDAR blocks). *PCA over a checkpoint's pool*: PCA of the points that "
         f"checkpoint's PCA frame and `hybrid`'s plane come from ({POOL_FACTOR} × its k nearest).",
@@ -133,8 +122,9 @@ def matrix_markdown(rows: list[CloudRow], command: str, seconds: float, quick: b
     return "\n".join(lines)
 
 
-def run_matrix(device: str, quick: bool, command: str) -> str:
-    """The matrix set's block, timed."""
+def run_matrix(device: str, clouds: list[LabelledCloud], command: str) -> str:
+    """The matrix set's block on `clouds` (eval's validation clouds), timed."""
     start = time.perf_counter()
-    rows = evaluate_matrix(device, quick)
-    return matrix_markdown(rows, command, time.perf_counter() - start, quick)
+    rows = evaluate_matrix(device, clouds)
+    points, queries = (len(clouds[0].points), min(len(clouds[0].points), QUERIES)) if clouds else (0, 0)
+    return matrix_markdown(rows, command, time.perf_counter() - start, points, queries)

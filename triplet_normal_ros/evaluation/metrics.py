@@ -12,6 +12,8 @@ many there were so tables can show it.
 import numpy as np
 
 WORST_ANGLE = np.pi / 2
+#: The seed of the fixed query subset every validation-shape table scores (`query_indices`).
+QUERY_SEED = 0
 
 
 def angles_rad(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
@@ -67,3 +69,8 @@ def ratio_interval(
         den += b[rows].mean(axis=1)
     lo, hi = np.quantile(num / den, [(1 - level) / 2, (1 + level) / 2])
     return float(lo), float(hi)
+
+
+def query_indices(n: int, count: int) -> np.ndarray:
+    """The fixed query subset: numpy.random.default_rng(QUERY_SEED).choice(n, count, replace=False), sorted."""
+    return np.sort(np.random.default_rng(QUERY_SEED).choice(n, min(n, count), replace=False))
