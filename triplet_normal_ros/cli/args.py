@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.config import defaults
+from ..core.config.defaults import NODE_NAME
 from ..core.config.settings import Settings, reason
 from ..errors import UsageError
 
@@ -211,9 +212,6 @@ def make_estimator(args: argparse.Namespace, radius: float):
 
 # -- --params-file ----------------------------------------------------------------------------------------------------
 
-#: The node's name: the section of a parameter file that configures it (``triplet_normal:``, ``/ns/triplet_normal:``;
-#: ``/**:`` configures every node).
-NODE_NAME = "triplet_normal"
 #: Shipped presets, config/<name>.yaml.
 PRESETS = ("params", "depth_camera", "lidar")
 #: The node's parameters that are estimator settings or message options, by the option (argparse dest) they set.

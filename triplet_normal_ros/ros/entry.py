@@ -2,8 +2,8 @@
 
 Importing a node (rclpy, torch, numba) takes 1-3 s, during which Python's own SIGINT handler would end a Ctrl-C'd
 process with a KeyboardInterrupt traceback and a code of 130 instead of a clean exit 0. So this module imports the
-standard library and `stopper` only; each entry point installs the stopper, then imports its node's module (a lazy
-import, for that reason alone) and runs its ``main``.
+standard library, `stopper` and the pure-Python defaults only; each entry point installs the stopper, then imports
+its node's module (a lazy import, for that reason alone) and runs its ``main``.
 """
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ from __future__ import annotations
 import importlib
 from typing import NoReturn
 
+from ..core.config.defaults import NODE_NAME
 from .stopper import STOPPER
 
-#: Each console script's node module; both nodes are named ``triplet_normal`` (their modules' NODE_NAME).
+#: Each console script's node module.
 NODES = {"node": f"{__package__}.node", "managed_node": f"{__package__}.managed_node"}
-NODE_NAME = "triplet_normal"
 
 
 def node() -> NoReturn:

@@ -24,10 +24,9 @@ from typing import Any, NoReturn
 
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
+from ..core.config.defaults import NODE_NAME
 from . import runner
 from .serving import ServingMixin, describe_error, package_location
-
-NODE_NAME = "triplet_normal"
 
 
 class ManagedNode(ServingMixin, LifecycleNode):

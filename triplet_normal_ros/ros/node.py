@@ -14,10 +14,9 @@ from typing import Any, NoReturn
 
 from rclpy.node import Node
 
+from ..core.config.defaults import NODE_NAME
 from . import runner
 from .serving import ConfigError, ServingMixin, package_location
-
-NODE_NAME = "triplet_normal"
 
 #: The node cannot start (bad parameter, missing or corrupt checkpoint); main() prints it and exits 1.
 StartupError = ConfigError

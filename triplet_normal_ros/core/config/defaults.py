@@ -41,6 +41,9 @@ ZEROS_ARE_NO_RETURNS = True
 #: Normals face the viewpoint (PCL's flipNormalTowardsViewpoint); the origin of the cloud's frame is the sensor.
 ORIENT = True
 VIEWPOINT = (0.0, 0.0, 0.0)
+#: The node's name, plain or managed: its logger's, its services' namespace, and the section of a parameter file that
+#: configures it (``triplet_normal:``, ``/ns/triplet_normal:``; ``/**:`` configures every node).
+NODE_NAME = "triplet_normal"
 #: Seconds between the node's statistics lines (and its /diagnostics status).
 STATS_PERIOD = 5.0
 #: The node's RViz outputs are off until asked for: each costs the worker time on every cloud while RViz listens.
