@@ -39,26 +39,29 @@ PCPNET_DIR = Path(__file__).resolve().parents[3] / "shared" / "data" / "pcpnet" 
 PCPNET_URL = "http://geometry.cs.ucl.ac.uk/projects/2018/pcpnet/"
 
 # Regression bounds: the measured figure plus a margin for numeric drift.
-HELDOUT_BOUNDS = {0.0: 0.23, 0.005: 0.70, 0.01: 0.99}  # learned / PCA MSAE
-SMOOTH_NOISY_BOUND = 1.04  # learned / PCA MSAE at 1 % noise (measured 1.03x)
+HELDOUT_BOUNDS = {0.0: 0.23, 0.005: 0.70}  # learned / PCA MSAE (measured 0.203, 0.677)
+#: At 1 % the network's corrections near edges are as small as the noise, and the ball's plane answers most points:
+#: learned / PCA 0.9925 (interval 0.973-1.013), a tie.
+HELDOUT_TIE_BOUND = 1.01
+SMOOTH_NOISY_BOUND = 1.01  # learned / PCA MSAE at 1 % noise (measured 1.001x; 1.03x before the ball's plane)
 CLEAN_SMOOTH_RMSE_MARGIN_DEG = 0.1  # the target: clean RMSE within 0.1° of PCA's (RESULTS: met, by being better)
 CLEAN_SMOOTH_RMSE_BOUND_DEG = 0.67  # near the measured 0.613°, so a regression that still beats PCA fails too
-LIGHT_SMOOTH_BOUND = 1.04
+LIGHT_SMOOTH_BOUND = 1.01  # measured 0.998x
 DEPTH_BOUNDS = (0.83, 0.61)  # learned / PCA over the pool: overall, near edges
 HYBRID_DEPTH_BOUNDS = (0.41, 0.70)  # hybrid (window survey) / PCA over the pool: overall, near edges (0.353, 0.609)
 #: LiDAR, with the preset's ball growing with range: hybrid / window PCA overall and near edges (measured 0.93 and
-#: 0.56), learned / PCA over its pool where both answer (measured 0.925), and the share of returns the windows answer
+#: 0.56), learned / PCA over its pool where both answer (measured 0.975), and the share of returns the windows answer
 #: (measured 0.943; the nearest-256 pool answers 0.461: one ring, a line, beyond a few metres).
 HYBRID_LIDAR_BOUNDS = (0.97, 0.82)
-LIDAR_COMMON_BOUND = 0.96
+LIDAR_COMMON_BOUND = 0.985
 LIDAR_WINDOW_COVERAGE = 0.92
 PCPNET_CUBE_BOUNDS = {0.0: 5.5, 0.006: 13.3}  # noise -> RMSE° bound
 
 # Claim bounds: docs/RESULTS.md's statements.
 #: Share of the distance from PCA to the Bayes floor that the learned method covers on noisy CAD ("ours: share" of
-#: the floor table: 68 % at 0.5 %, 20 % at 1 %, 50 % pooled over both); measured here 74 %, 36 % and 62 %.
-FLOOR_SHARE = {0.005: 0.68, 0.01: 0.20}
-FLOOR_SHARE_POOLED = 0.50
+#: the floor table: 67 % at 0.5 %, 6 % at 1 %, 43 % pooled over both); measured here 73 %, 5 % and 53 %.
+FLOOR_SHARE = {0.005: 0.67, 0.01: 0.04}
+FLOOR_SHARE_POOLED = 0.43
 
 
 # --- scoring -------------------------------------------------------------------------------------------------------
@@ -154,10 +157,18 @@ def test_heldout_shape_is_not_in_the_training_catalogue():
 
 @pytest.mark.parametrize("noise", sorted(HELDOUT_BOUNDS))
 def test_shipped_checkpoint_beats_pca_on_heldout_cad(noise: float):
-    """RESULTS: sharp features with little or moderate noise are where it helps (0.20x, 0.67x, 0.95x held out)."""
+    """RESULTS: sharp features with little or moderate noise are where it helps (0.20x, 0.68x held out)."""
     s = _heldout(noise)
     assert s.ratio() < HELDOUT_BOUNDS[noise]
     assert s.interval()[1] < 1.0, f"not better than PCA beyond sampling error: {s.interval()}"
+
+
+@pytest.mark.parametrize("method", ["learned", "hybrid"])
+def test_at_1_percent_noise_on_heldout_cad_the_checkpoint_ties_pca(method: str):
+    """RESULTS (the floor table): at 1 % noise the network's answer seldom departs from the ball's plane beyond
+    noise, and the method ties PCA: no worse beyond sampling error."""
+    s = _heldout(0.01)
+    assert s.ratio(method) < HELDOUT_TIE_BOUND and s.interval(method)[0] < 1.0, s.interval(method)
 
 
 @pytest.mark.parametrize("noise", sorted(HELDOUT_BOUNDS))
@@ -187,7 +198,7 @@ def test_shipped_checkpoint_stays_above_the_bayes_floor_and_closes_its_share_of_
 
 
 def test_shipped_checkpoint_closes_half_the_gap_to_the_floor_on_noisy_cad_pooled():
-    """RESULTS: at 0.5 and 1 % pooled, 50 % of the way from PCA to the Bayes floor."""
+    """RESULTS: at 0.5 and 1 % pooled, 43 % of the way from PCA to the Bayes floor."""
     levels = [_heldout(noise) for noise in sorted(FLOOR_SHARE)]
     pca, learned, floor = (sum(getattr(s, name).mean() for s in levels) for name in ("pca", "learned", "floor"))
     assert (pca - learned) / (pca - floor) >= FLOOR_SHARE_POOLED
@@ -196,8 +207,9 @@ def test_shipped_checkpoint_closes_half_the_gap_to_the_floor_on_noisy_cad_pooled
 # --- smooth shapes -------------------------------------------------------------------------------------------------
 
 
-def test_shipped_checkpoint_stays_within_4_percent_of_pca_on_a_noisy_smooth_validation_shape():
-    """RESULTS: on smooth shapes at 1 % the checkpoint is 1.03x PCA (parity is a target it does not meet)."""
+def test_shipped_checkpoint_stays_within_1_percent_of_pca_on_a_noisy_smooth_validation_shape():
+    """RESULTS: on smooth shapes at 1 % the checkpoint matches PCA (1.00x): its answers give way to the ball's plane
+    where they agree with it to within noise."""
     assert _smooth(0.01).ratio() < SMOOTH_NOISY_BOUND
 
 
@@ -313,7 +325,7 @@ def test_on_lidar_scans_hybrid_beats_window_pca_overall_and_most_near_edges():
 
 
 def test_on_lidar_scans_learned_beats_pca_over_its_pool_where_the_pool_spans_a_plane():
-    """RESULTS: where the learned pool determines a plane, learned has 0.925x the error of PCA over that pool."""
+    """RESULTS: where the learned pool determines a plane, learned has 0.975x the error of PCA over that pool."""
     s = _range("lidar")
     both = s.answered("learned") & s.answered("pca")
     ratio, interval = s.versus("learned", "pca", both)

@@ -5,7 +5,9 @@ Measured when it shipped, 5000 query points, PCA over the 256-point pool: MSAE 0
 0.0643 against 0.0707 at 0.5 % noise (0.91x), 0.1079 against 0.1081 at 1 % (1.00x, not tested: no margin). The
 bounds leave room for numeric drift, not for a broken model: an untrained residual head is exactly PCA (1.0x).
 In absolute MSAE lite matches the default checkpoint here (0.0303, 0.0628, 0.1090); its ratios look worse only
-because PCA over 256 points blurs edges less than over 512.
+because PCA over 256 points blurs edges less than over 512. Since lite's answers are weighed against the plane of the
+whole ball (core/learned/trust.py), 0.0680 against 0.0707 at 0.5 % (0.96x): where the network's correction is within
+noise, the ball's plane answers, which blurs the edge more than the pool's.
 """
 
 import numpy as np
@@ -26,7 +28,7 @@ def _msae(estimator: NormalEstimator, cloud, query: np.ndarray) -> float:
     return msae(normals, cloud.normals[query])
 
 
-@pytest.mark.parametrize(("noise", "bound"), [(0.0, 0.55), (0.005, 0.95)])
+@pytest.mark.parametrize(("noise", "bound"), [(0.0, 0.55), (0.005, 0.98)])
 def test_lite_checkpoint_beats_pca_on_heldout_cad(noise: float, bound: float):
     cloud = heldout_cad_cloud(n_points=100_000, noise=noise, seed=123)
     radius = 0.05 * bbox_diagonal(cloud.points)

@@ -406,7 +406,7 @@ def validation_markdown(results: list[CloudScores], header: str, seconds: float)
     floor_ratio /= pca_noisy
     clean_ratio = _mean(results, "ours", 0, cad_clean) / _mean(results, "pca", 0, cad_clean)
     smooth_ratio = _mean(results, "ours", 0, smooth) / _mean(results, "pca", 0, smooth)
-    cad_ci, smooth_ci = _interval(results, cad_noisy, 2), _interval(results, smooth, 3)
+    cad_ci, smooth_ci = _interval(results, cad_noisy, 2), _interval(results, smooth, 4)
     floor_ci = _interval(results, cad_noisy, 2, floor=True)
     return "\n".join(
         [
@@ -420,7 +420,7 @@ def validation_markdown(results: list[CloudScores], header: str, seconds: float)
             f"| {_met(clean_ratio <= 0.15)} |",
             f"| noisy CAD (0.5%, 1%) pooled: ours MSAE ≤ 0.70 × PCA 5% | ours / PCA = {cad_ratio:.2f} (mean MSAE ratio"
             f"{cad_ci}); Bayes floor / PCA = {floor_ratio:.2f}{floor_ci} | {_met(cad_ratio <= 0.70)} |",
-            f"| smooth shapes: no worse than PCA 5% | ours / PCA = {smooth_ratio:.3f}{smooth_ci} "
+            f"| smooth shapes: no worse than PCA 5% | ours / PCA = {smooth_ratio:.4f}{smooth_ci} "
             f"| {_met(smooth_ratio <= 1.0)} |",
             "",
             "Intervals: 95% paired bootstrap over the query points of each cloud (1000 draws): the sampling error of "

@@ -13,20 +13,17 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 from tqdm import tqdm
 
-from ..core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
+from ..core.config.conventions import PCA_DEFAULT_K, POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from ..core.config.defaults import SHIPPED_FOR_DEVICE
 from ..core.estimator import NormalEstimator
 from ..core.learned.checkpoint import SHIPPED
 from ..training.dataset import LabelledCloud
-from .metrics import QUERY_SEED, angles_rad, query_indices
+from .metrics import QUERY_SEED, angles_rad, query_indices, ratio_interval
 
 #: Query points per cloud (`metrics.query_indices`, as `val`'s): fewer than `val`'s, for the estimators per cloud.
 QUERIES = 1000
-#: PCA's neighbourhood: the whole 5 % ball, up to this many nearest points (the default checkpoint's pool).
-PCA_POOL = 512
 #: The regimes, as (label, kind or None for both, noise levels × the bbox diagonal).
 REGIMES = (
     ("CAD parts, clean", "cad", (0.0,)),
@@ -39,18 +36,18 @@ METHODS = ("learned", "hybrid")
 
 @dataclass
 class CloudRow:
-    """One validation cloud's mean squared angles: PCA's and each (method, checkpoint)'s."""
+    """One validation cloud's squared angles at its query points: PCA's and each (method, checkpoint)'s."""
 
     kind: str
     noise: float
-    pca: float
-    methods: dict[tuple[str, str], float]
+    pca: np.ndarray
+    methods: dict[tuple[str, str], np.ndarray]
 
 
 def matrix_estimators(device: str) -> dict[tuple[str, str], NormalEstimator]:
     """(method, checkpoint) -> estimator, for every shipped checkpoint and both network methods; then ("pca", name)
-    for each checkpoint whose pool (POOL_FACTOR × its k nearest points, where its PCA frame and hybrid's plane
-    come from) is smaller than the reference PCA's: PCA over that pool, which shows what the pool alone costs."""
+    for each checkpoint whose pool (POOL_FACTOR × its k nearest points, where its PCA frame and hybrid's gate come
+    from) is smaller than the reference PCA's: PCA over that pool, which shows what a plane from the pool would cost."""
     rows = {
         (method, name): NormalEstimator(method, radius=RADIUS_FRACTION, checkpoint=name, device=device)
         for name in SHIPPED
@@ -58,7 +55,7 @@ def matrix_estimators(device: str) -> dict[tuple[str, str], NormalEstimator]:
     }
     for name in SHIPPED:
         pool = POOL_FACTOR * rows[("learned", name)].k
-        if pool < PCA_POOL:
+        if pool < PCA_DEFAULT_K:
             rows[("pca", name)] = NormalEstimator("pca", radius=RADIUS_FRACTION, k=pool, device=device)
     return rows
 
@@ -73,14 +70,12 @@ def evaluate_matrix(device: str, clouds: list[LabelledCloud]) -> list[CloudRow]:
         query = query_indices(len(points), QUERIES)
         exact = cloud.normals[query]
         radius = RADIUS_FRACTION * bbox_diagonal(points)
-        counts = cKDTree(points).query_ball_point(points[query], radius, return_length=True, workers=-1)
-        pca.radius, pca.k = radius, int(np.clip(np.max(counts, initial=3), 3, PCA_POOL))
+        pca.radius = radius
         scores = {}
         for key, estimator in estimators.items():
             estimator.radius = radius
-            scores[key] = float(np.mean(angles_rad(estimator.estimate(points, query)[0], exact) ** 2))
-        pca_score = float(np.mean(angles_rad(pca.estimate(points, query)[0], exact) ** 2))
-        rows.append(CloudRow(cloud.kind, cloud.noise, pca_score, scores))
+            scores[key] = angles_rad(estimator.estimate(points, query)[0], exact) ** 2
+        rows.append(CloudRow(cloud.kind, cloud.noise, angles_rad(pca.estimate(points, query)[0], exact) ** 2, scores))
     return rows
 
 
@@ -102,11 +97,13 @@ def matrix_markdown(rows: list[CloudRow], command: str, seconds: float, points: 
         f"Command: `{command}`",
         f"Clouds: the validation shapes (never trained on), {points} points each, {queries} query points per cloud "
         f"(`default_rng({QUERY_SEED})`), r = {RADIUS_FRACTION:.0%} of the bbox diagonal. Each cell: the method's MSAE "
-        f"over PCA's (the whole ball, up to {PCA_POOL} nearest points), means over the regime's clouds; above 1 "
-        "loses to PCA. "
+        f"over PCA's (`pca` at its defaults: the whole ball, up to {PCA_DEFAULT_K} nearest points), means over the "
+        "regime's clouds; above 1 loses to PCA, and such a cell gives its 95 % interval (paired bootstrap over the "
+        "query points). "
         "With no checkpoint named, these clouds get `lite` on a CPU and `default` on a GPU; range images get `range` "
         "on a CPU (the depth, fold and LiDAR blocks). *PCA over a checkpoint's pool*: PCA of the points that "
-        f"checkpoint's PCA frame and `hybrid`'s plane come from ({POOL_FACTOR} × its k nearest).",
+        f"checkpoint's PCA frame and hybrid's gate read ({POOL_FACTOR} × its k nearest): what a plane from the pool "
+        "instead of the ball would give.",
         "",
         "| regime | clouds | PCA MSAE | " + " | ".join(label(*key) for key in keys) + " |",
         "| --- | ---: | ---: | " + " | ".join("---:" for _ in keys) + " |",
@@ -115,11 +112,21 @@ def matrix_markdown(rows: list[CloudRow], command: str, seconds: float, points: 
         chosen = [r for r in rows if (kind is None or r.kind == kind) and any(abs(r.noise - n) < 1e-9 for n in levels)]
         if not chosen:
             continue
-        pca = np.mean([r.pca for r in chosen])
-        cells = [f"{np.mean([r.methods[key] for r in chosen]) / pca:.3f}" for key in keys]
+        pca = np.mean([r.pca.mean() for r in chosen])
+        cells = [ratio_cell([(r.methods[key], r.pca) for r in chosen]) for key in keys]
         lines.append(f"| {name} | {len(chosen)} | {pca:.5f} | " + " | ".join(cells) + " |")
     lines += ["", f"Wall time {seconds / 60:.1f} min."]
     return "\n".join(lines)
+
+
+def ratio_cell(pairs: list[tuple[np.ndarray, np.ndarray]]) -> str:
+    """The method's MSAE over PCA's, means over the clouds; above 1, with its 95 % interval (`ratio_interval`): a
+    loss of a few thousandths may be the draw of the query points, not the method."""
+    ratio = sum(a.mean() for a, _ in pairs) / sum(b.mean() for _, b in pairs)
+    if round(ratio, 3) <= 1.0:
+        return f"{ratio:.3f}"
+    lo, hi = ratio_interval(pairs)
+    return f"{ratio:.3f} ({lo:.3f}-{hi:.3f})"
 
 
 def run_matrix(device: str, clouds: list[LabelledCloud], command: str) -> str:

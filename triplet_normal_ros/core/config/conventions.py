@@ -6,7 +6,8 @@ so changing a value here can never silently mismatch a shipped model.
 
 import numpy as np
 
-#: The methods `NormalEstimator` offers: the network everywhere, PCA, or PCA with the network where it is not flat.
+#: The methods `NormalEstimator` offers: the network everywhere (weighed against the ball's plane), PCA, or PCA with
+#: the network where it is not flat.
 METHODS = ("learned", "pca", "hybrid")
 #: The learned method draws its k points from the nearest POOL_FACTOR * k points inside the ball; PCA frames and
 #: curvature come from that whole pool.

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from ...errors import EstimationCancelled
-from ..config.conventions import POOL_FACTOR
+from ..config.conventions import PCA_DEFAULT_K, POOL_FACTOR
 from ..config.plan import Plan
 from ..config.settings import Settings
 from ..learned.model import TripletNormalNet
@@ -31,7 +31,8 @@ PCA_CHUNK = 16384
 #: also let more of the queries follow the tree's leaves (16,384: 1.04 × Open3D KNN30's time, 65,536: 0.91 ×).
 TREE_PCA_CHUNK = 65536
 
-#: A chunk kernel: (call, cloud, centres, pools, rows, radius) -> (normals, curvature) as numpy, NaN where unknown.
+#: A chunk kernel: (call, cloud, centres, pools, rows, radius, plane) -> (normals, curvature) as numpy, NaN where
+#: unknown; `plane` is PCA of the whole ball (`pools.pool_and_ball`) for the network's kernels, or None.
 Kernel = Callable[..., tuple[np.ndarray, np.ndarray]]
 
 
@@ -91,6 +92,13 @@ class Call:
         """PCA keeps k neighbours; the network sees k points drawn from a pool of POOL_FACTOR × k (the nearest, on the
         KD-tree and the cell lists; a uniform sample of the ball of about that size, on the pixel grid)."""
         return self.k if self.settings.method == "pca" else POOL_FACTOR * self.k
+
+    def ball_size(self) -> int:
+        """The ball hybrid's plane comes from: up to PCA_DEFAULT_K nearest points, the whole ball as `pca` takes it
+        by default, or the network's pool where that is larger. A dense cloud holds more points in the ball than a
+        small checkpoint's pool, and a plane over fewer of them is noisier than plain PCA's (docs/RESULTS.md, the
+        matrix)."""
+        return max(self.pool_size(), PCA_DEFAULT_K)
 
     def fit_options(self) -> dict[str, tuple[int, ...]]:
         """The plane fits a scale-head checkpoint reads (none for the others)."""

@@ -5,14 +5,16 @@ them (PCA, patches through the network, or hybrid's PCA with the network where i
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from typing import NamedTuple
 
 import numpy as np
 import torch
 
 from ..config.plan import Plan
 from ..learned.patches import Patches, build_patches, to_world
+from ..learned.trust import settle
 from ..pca.eigen import EIGEN_GAP
-from ..pca.frames import quadric_gain, spans_plane, surface_variation
+from ..pca.frames import QuadricGain, quadric_gain, spans_plane, surface_variation
 from ..pca.pools import pool_normals, pool_pca
 from ..search.pools import PoolSearch, ScanLines, open_search, radius_groups
 from .call import CHUNK, PCA_CHUNK, TREE_PCA_CHUNK, Call, Cloud, Kernel, finish
@@ -53,10 +55,12 @@ def over_pools(
 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """For each chunk of the `todo` positions of `query`: (positions, normals, curvature) from `kernel` over the
     chunk's pools, NaN where an organized cloud's pool lies on one scan line (`lines`); raises EstimationCancelled
-    between chunks once the call is cancelled. `pca` over the KD-tree on a CPU searches and sums in one loop
-    (`tree_pca`) and stores no pools."""
+    between chunks once the call is cancelled. `learned` and `hybrid` also get the plane of the whole ball
+    (`pool_and_ball`), where that is larger than the network's pool. `pca` over the KD-tree on a CPU searches and
+    sums in one loop (`tree_pca`) and stores no pools."""
     s = call.settings
     fused = kernel is pca_kernel and lines is None and search.name == "kdtree" and call.compiled
+    whole_ball = kernel in (hybrid_kernel, learned_kernel) and call.ball_size() > call.pool_size()
     chunk = max(chunk, TREE_PCA_CHUNK) if fused else chunk
     for radius, group in radius_groups(s.radius, s.range_scale, cloud, query, todo):
         for lo in range(0, len(group), chunk):
@@ -66,16 +70,31 @@ def over_pools(
                 yield out, *tree_pca(call, search, query[out], radius)
                 continue
             rows = torch.from_numpy(query[out]).to(call.device)
-            with call.timed("neighbours"):
-                pool = search.pool(rows, radius, call.pool_size())
-            normals, curvature = kernel(call, cloud, cloud[rows], pool, rows, radius)
+            if whole_ball:
+                pool, plane = pool_and_ball(call, search, cloud, rows, radius)
+            else:
+                with call.timed("neighbours"):
+                    pool, plane = search.pool(rows, radius, call.pool_size()), None
+            normals, curvature = kernel(call, cloud, cloud[rows], pool, rows, radius, plane)
             if lines is not None:
                 line = lines.single(pool, rows).cpu().numpy()
                 normals[line], curvature[line] = np.nan, np.nan
             yield out, normals, curvature
 
 
-def pca_kernel(call: Call, cloud, centres, pool, rows, _radius) -> tuple[np.ndarray, np.ndarray]:
+def pool_and_ball(call: Call, search: PoolSearch, cloud, rows, radius: float) -> tuple[torch.Tensor, tuple]:
+    """(the network's pool, (normal, ascending eigenvalues, valid) of PCA over the whole ball of up to
+    `Call.ball_size` nearest points, what `pca` answers there) around cloud `rows`. Where the search lists its
+    pools nearest first (the KD-tree, the cell lists) the pool is the ball's first columns, one search for both."""
+    with call.timed("neighbours"):
+        ball = search.pool(rows, radius, call.ball_size())
+        pool = ball[:, : call.pool_size()] if search.nearest_first else search.pool(rows, radius, call.pool_size())
+    with call.timed("pca"):
+        normal, eigvals, valid = pool_normals(cloud, cloud[rows], ball, rows, call.compiled)
+    return pool, (normal, eigvals, valid & spans_plane(eigvals))
+
+
+def pca_kernel(call: Call, cloud, centres, pool, rows, _radius, _plane=None) -> tuple[np.ndarray, np.ndarray]:
     """PCA of each pool (`pool_normals`: the normal and eigenvalues only, no frame)."""
     with call.timed("pca"):
         normal, eigvals, valid = pool_normals(cloud, centres, pool, rows, call.compiled)
@@ -95,8 +114,58 @@ def tree_pca(call: Call, search: PoolSearch, rows: np.ndarray, radius: float) ->
 
 
 @torch.inference_mode()
-def learned_kernel(call: Call, cloud, centres, pool, rows, radius) -> tuple[np.ndarray, np.ndarray]:
-    """The network everywhere: PCA-aligned patches of each pool, the model's normal back in the world frame."""
+def network_kernel(call: Call, cloud, centres, pool, rows, radius, _plane=None) -> tuple[np.ndarray, np.ndarray]:
+    """The network alone: what the range-image path asks of the pools where its own survey has the plane."""
+    patches, answers = network_answers(call, cloud, centres, pool, rows, radius)
+    return finish(answers, patches.curvature, patches.valid & spans_plane(patches.eigvals))
+
+
+@torch.inference_mode()
+def learned_kernel(call: Call, cloud, centres, pool, rows, radius, plane=None) -> tuple[np.ndarray, np.ndarray]:
+    """The network everywhere; its answer stands where it departs from the plane of the whole ball (`plane`, or the
+    pool's where none is given) beyond noise, and a plane answers elsewhere (`trust.settle`)."""
+    patches, answers = network_answers(call, cloud, centres, pool, rows, radius)
+    fit = fit_planes(call, cloud, centres, pool, radius, plane, patches)
+    with call.timed("pca"):
+        normal, valid = settle(answers, fit.own[2], fit.plane, fit.own, fit.count, fit.noise)
+    return finish(normal, surface_variation(fit.plane[1]), valid)
+
+
+class Planes(NamedTuple):
+    """The planes both network kernels weigh the network against, for one chunk of pools."""
+
+    #: The pool's PCA, as `pool_pca` gives it: offsets from the centre, mask, frames, valid.
+    local: torch.Tensor
+    mask: torch.Tensor
+    frame: torch.Tensor
+    #: The pool's plane and the ball's (the same where no ball is given): (normal, ascending eigenvalues, valid).
+    own: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+    plane: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+    count: torch.Tensor
+    #: The quadric gate's statistics of the pool, and its noise variance in the eigenvalues' unit.
+    gain: QuadricGain
+    noise: torch.Tensor
+
+
+def fit_planes(call: Call, cloud, centres, pool, radius, plane, patches: Patches | None = None) -> Planes:
+    """PCA of each pool (or the frames and eigenvalues its `patches` already hold), timed as "pca", and the quadric
+    over it, timed as "gate"; the ball's `plane` where one is given, else the pool's."""
+    with call.timed("pca"):
+        if patches is None:
+            local, mask, valid, eigvals, frame = pool_pca(cloud, centres, pool)
+        else:
+            mask = pool >= 0
+            local = torch.where(mask.unsqueeze(-1), cloud[pool.clamp_min(0)] - centres.unsqueeze(1), 0.0)
+            valid, eigvals, frame = patches.valid, patches.eigvals * radius**2, patches.rotation
+        own = (frame[:, 2], eigvals, valid & spans_plane(eigvals))
+    with call.timed("gate"):
+        gain = quadric_gain(local / radius, mask, frame)
+    noise = gain.noise.to(eigvals.dtype) * radius**2
+    return Planes(local, mask, frame, own, own if plane is None else plane, mask.sum(dim=1), gain, noise)
+
+
+def network_answers(call: Call, cloud, centres, pool, rows, radius) -> tuple[Patches, torch.Tensor]:
+    """(patches, normals): the model's normal over PCA-aligned patches of each pool, in the world frame."""
     with call.timed("patches"):
         patches = build_patches(
             cloud,
@@ -112,8 +181,7 @@ def learned_kernel(call: Call, cloud, centres, pool, rows, radius) -> tuple[np.n
         )
     local = network(call, patches)
     call.run.network += len(centres)
-    valid = patches.valid & spans_plane(patches.eigvals)
-    return finish(to_world(local, patches.rotation), patches.curvature, valid)
+    return patches, to_world(local, patches.rotation)
 
 
 def network(call: Call, patches: Patches) -> torch.Tensor:
@@ -133,19 +201,17 @@ def network(call: Call, patches: Patches) -> torch.Tensor:
 
 
 @torch.inference_mode()
-def hybrid_kernel(call: Call, cloud, centres, pool, rows, radius) -> tuple[np.ndarray, np.ndarray]:
-    """PCA of the whole pool everywhere (the learned method's own frame); the network where a quadric explains the
-    neighbourhood significantly (F > gate) and substantially (its RMS height > bend radii) better than that plane."""
+def hybrid_kernel(call: Call, cloud, centres, pool, rows, radius, plane=None) -> tuple[np.ndarray, np.ndarray]:
+    """A plane everywhere, and the network where a quadric explains the pool significantly (F > gate) and
+    substantially (its RMS height > bend radii) better than the pool's plane; the network's answer stands where it
+    departs from the plane of the whole ball (`plane`, or the pool's where none is given) beyond noise (`trust.settle`).
+
+    The gate and the network's patch read the pool, in the frame they were chosen and trained in; the plane reads the
+    ball, which on a dense cloud averages more points than a small checkpoint's pool."""
     s = call.settings
-    with call.timed("pca"):
-        local, mask, valid, eigvals, frame = pool_pca(cloud, centres, pool)
-        valid &= spans_plane(eigvals)
-        curvature = surface_variation(eigvals)
-        normal = frame[:, 2].clone()
-    with call.timed("gate"):
-        gain = quadric_gain(local / radius, mask, frame)
-        structured = (gain.f > s.gate) & (gain.bend > s.bend)
-        gated = torch.nonzero(valid & structured).squeeze(1)
+    fit = fit_planes(call, cloud, centres, pool, radius, plane)
+    gated = torch.nonzero(fit.own[2] & (fit.gain.f > s.gate) & (fit.gain.bend > s.bend)).squeeze(1)
+    answers = torch.zeros_like(fit.own[0])
     if len(gated):
         with call.timed("patches"):
             patches = build_patches(
@@ -157,11 +223,14 @@ def hybrid_kernel(call: Call, cloud, centres, pool, rows, radius) -> tuple[np.nd
                 centre_ids=rows[gated],
                 point_ids=call.ids,
                 seed=s.seed,
-                pca=(eigvals[gated], frame[gated]),
+                pca=(fit.own[1][gated], fit.frame[gated]),
                 compiled=call.compiled,
                 **call.fit_options(),
             )
-        local_normals = network(call, patches)
-        normal[gated] = to_world(local_normals, patches.rotation).to(normal.dtype)
+        answers[gated] = to_world(network(call, patches), patches.rotation).to(answers.dtype)
         call.run.network += len(gated)
-    return finish(normal, curvature, valid)
+    ran = torch.zeros_like(fit.own[2])
+    ran[gated] = True
+    with call.timed("pca"):
+        normal, answered = settle(answers, ran, fit.plane, fit.own, fit.count, fit.noise)
+    return finish(normal, surface_variation(fit.plane[1]), answered)

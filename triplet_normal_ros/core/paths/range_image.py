@@ -21,7 +21,7 @@ from ..range_image.sides import snap_to_sides
 from ..range_image.survey import PART_SPAN, opens, survey_and_cue, survey_on_slope
 from ..search.pools import PoolSearch, ScanLines, open_search
 from .call import CHUNK, Call, Cloud, finish
-from .pools import hybrid_kernel, learned_kernel, over_pools
+from .pools import hybrid_kernel, network_kernel, over_pools
 
 
 def range_image_path(
@@ -156,6 +156,6 @@ def _network(call: Call, search: PoolSearch, cloud: torch.Tensor, pixels: np.nda
     """(len(pixels), 3) float32: the network's answer at each pixel over its pool, NaN where it gives none."""
     out = np.full((len(pixels), 3), np.nan, dtype=np.float32)
     every = np.arange(len(pixels))
-    for rows, answer, _ in over_pools(call, search, cloud, pixels, every, learned_kernel, CHUNK, lines):
+    for rows, answer, _ in over_pools(call, search, cloud, pixels, every, network_kernel, CHUNK, lines):
         out[rows] = answer
     return out

@@ -87,6 +87,9 @@ class QuadricGain(NamedTuple):
     #: sqrt((SS_plane - SS_quadric) / n), in units of the radius: is the bend *large*? The RMS height by which the best
     #: quadric departs from the plane over the ball. Noise alone adds only about sigma * sqrt(3 / n).
     bend: torch.Tensor
+    #: SS_quadric / (n - 6), in units of the radius squared: the variance of the heights the quadric leaves, the noise
+    #: once the surface's own bend is taken out (where PCA's smallest eigenvalue counts the bend as noise).
+    noise: torch.Tensor
 
 
 def quadric_gain(local: torch.Tensor, mask: torch.Tensor, frame: torch.Tensor) -> QuadricGain:
@@ -96,7 +99,8 @@ def quadric_gain(local: torch.Tensor, mask: torch.Tensor, frame: torch.Tensor) -
     a significance test: with hundreds of points even a millimetre of systematic waviness (real Kinect depth has it)
     is significant, so F alone sent 74-96 % of a real frame to the network. The bend measures the effect itself, in
     units of the radius, so hybrid asks for both. `local` (B, P, 3) in units of the radius, `mask` (B, P), `frame`
-    (B, 3, 3) as from `principal_frames`. Rows with fewer than 7 points get F = bend = 0.
+    (B, 3, 3) as from `principal_frames`. Rows with fewer than 7 points get F = bend = 0 and their plane's residual as
+    the noise.
     """
     # float32 is enough: coordinates are in units of the radius (|x| <= 1) and the ridge below keeps the solve sane.
     weight = mask.to(torch.float32)
@@ -117,4 +121,5 @@ def quadric_gain(local: torch.Tensor, mask: torch.Tensor, frame: torch.Tensor) -
     enough = count >= 7
     f = torch.where(enough, gain / 3 / noise, 0.0)
     bend = torch.where(enough, (gain / count.clamp_min(1)).sqrt(), 0.0)
-    return QuadricGain(f, bend)
+    residual = ss_plane / count.clamp_min(1)
+    return QuadricGain(f, bend, torch.where(enough, noise, residual))

@@ -28,6 +28,8 @@ class PoolSearch:
 
     name = "none"
     finite: np.ndarray
+    #: Whether a pool lists its points nearest first, so that its first columns are the pool of a smaller size.
+    nearest_first = True
 
     def pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
         raise NotImplementedError
@@ -70,6 +72,7 @@ class _DeviceSearch(PoolSearch):
 
     def __init__(self, name: str, index: GridIndex | VoxelIndex) -> None:
         self.name, self.index, self.finite = name, index, index.finite.cpu().numpy()
+        self.nearest_first = name != "grid"  # the grid's pool is a sample spread over the ball
 
     def pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
         return self.index.ball(rows, radius, size)
