@@ -32,7 +32,7 @@ from triplet_normal_ros.core.config.conventions import (
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.learned.checkpoint import SHIPPED
 from triplet_normal_ros.core.learned.patches import build_patches, to_world
-from triplet_normal_ros.core.learned.trust import settle
+from triplet_normal_ros.core.learned.trust import Plane, settle
 from triplet_normal_ros.core.pca.frames import masked_covariance, principal_frames, quadric_gain, spans_plane
 from triplet_normal_ros.core.search.neighbours import NeighbourIndex
 from triplet_normal_ros.evaluation.metrics import angles_rad, query_indices
@@ -62,7 +62,7 @@ def planes(index: NeighbourIndex, points: np.ndarray, query: np.ndarray, radius:
     valid = (count >= 3) & spans_plane(eigvals)
     return {
         "pool": pool,
-        "plane": (torch.where(valid.unsqueeze(-1), frame[:, 2], torch.nan), eigvals, valid),
+        "plane": Plane(torch.where(valid.unsqueeze(-1), frame[:, 2], torch.nan), eigvals, valid),
         "count": count,
         "noise": gain.noise.to(eigvals.dtype),
         "open": (gain.f > HYBRID_GATE) & (gain.bend > HYBRID_BEND),

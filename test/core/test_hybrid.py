@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 
+from triplet_normal_ros.core.config.conventions import POOL_FACTOR
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.pca.frames import masked_covariance, principal_frames, quadric_gain
 from triplet_normal_ros.errors import EstimatorError
@@ -131,3 +132,19 @@ def test_an_infinite_bend_is_pca_whatever_the_gate() -> None:
 def test_bad_bends_are_refused(bend: object) -> None:
     with pytest.raises(EstimatorError, match="bend must be"):
         NormalEstimator("pca", bend=bend)
+
+
+def test_with_a_pool_smaller_than_the_ball_flat_points_take_the_whole_balls_plane() -> None:
+    """`lite`'s pool is 256 points; on a dense cloud the ball holds more, and where the gate stays shut hybrid answers
+    with the plane of the whole ball: exactly what `pca` at its defaults answers there, not PCA over the pool."""
+    points, _ = _box_corner_cloud(60000, seed=4)  # about 600 points in a 0.1 ball on each face
+    query = np.arange(0, len(points), 97)
+    far = np.sort(points[query], axis=1)[:, 1] > 0.15  # the ball on one face only
+    hybrid, _ = NormalEstimator("hybrid", radius=0.1, device="cpu", checkpoint="lite").estimate(points, query)
+    ball, _ = NormalEstimator("pca", radius=0.1, device="cpu").estimate(points, query)
+    pool, _ = NormalEstimator("pca", radius=0.1, k=POOL_FACTOR * 64, device="cpu").estimate(points, query)
+    def degrees(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.degrees(np.arccos(np.clip(np.abs(np.einsum("ij,ij->i", a, b)), 0, 1)))[far]
+
+    assert (degrees(hybrid, ball) < 0.05).mean() > 0.95  # float32 roundoff apart (arccos resolves 0.02° near 1)
+    assert np.median(degrees(hybrid, pool)) > 0.05  # the pool's 256 points give another plane

@@ -90,3 +90,19 @@ def test_nan_pixels_are_never_neighbours() -> None:
     idx = grid.ball(torch.arange(1, 120 * 160, 3), 0.05, 64)
     found = idx[idx >= 0]
     assert len(found) and bool(torch.isfinite(points[found]).all())
+
+
+@pytest.mark.parametrize("method", ["learned", "hybrid"])
+def test_the_networks_kernels_search_the_grid_twice_and_take_the_balls_plane(method: str) -> None:
+    """The grid's pools are samples spread over the ball, not nearest first, so the network's pool and the ball are
+    two searches; on a noisy plane the ball's plane answers where the network agrees with it, as over the KD-tree."""
+    cloud = _pinhole_plane(sigma=0.004)
+    query = np.arange(0, len(cloud), 97)
+    grid = NormalEstimator(method, radius=0.06, neighbours="grid", checkpoint="lite", device="cpu")
+    tree = NormalEstimator(method, radius=0.06, neighbours="kdtree", checkpoint="lite", device="cpu")
+    a, _ = grid.estimate(cloud, query, shape=(120, 160))
+    b, _ = tree.estimate(cloud, query, shape=(120, 160))
+    assert grid.last_run.search == "grid" and tree.last_run.search == "kdtree"
+    truth = np.array([0.0, -0.6, -0.8])
+    error = [np.degrees(np.arccos(np.clip(np.abs(n @ truth), 0, 1))) for n in (a, b)]
+    assert np.isfinite(a).all() and np.median(error[0]) < 2.0 and abs(np.median(error[0]) - np.median(error[1])) < 0.5

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from triplet_normal_ros.core.learned.trust import DEPARTS_Z, plane_error, settle
+from triplet_normal_ros.core.learned.trust import DEPARTS_Z, Plane, plane_error, settle
 
 
 def _tilted(degrees: float) -> torch.Tensor:
@@ -32,7 +32,7 @@ def test_the_standard_error_is_andersons_and_grows_without_bound_as_the_plane_di
 
 def test_the_network_stands_only_where_it_departs_beyond_noise() -> None:
     limit = math.degrees(DEPARTS_Z * float(plane_error(EIGVALS, COUNT, NOISE)[0]))
-    plane = (Z, EIGVALS, YES)
+    plane = Plane(Z, EIGVALS, YES)
     for degrees, stands in ((0.5 * limit, False), (2 * limit, True), (30.0, True)):
         normal, valid = settle(_tilted(degrees), YES, plane, plane, COUNT, NOISE)
         assert bool(valid[0])
@@ -42,23 +42,25 @@ def test_the_network_stands_only_where_it_departs_beyond_noise() -> None:
 
 
 def test_noise_widens_what_counts_as_agreement() -> None:
-    plane, noisy = (Z, EIGVALS, YES), torch.tensor([0.04], dtype=torch.float64)  # 20 % noise on the same disc
+    plane, noisy = Plane(Z, EIGVALS, YES), torch.tensor([0.04], dtype=torch.float64)  # 20 % noise on the same disc
     assert torch.equal(settle(_tilted(2.0), YES, plane, plane, COUNT, NOISE)[0], _tilted(2.0))
     assert torch.equal(settle(_tilted(2.0), YES, plane, plane, COUNT, noisy)[0], Z)
 
 
 def test_where_the_ball_gives_no_plane_the_network_or_the_pool_answers() -> None:
-    nothing = (torch.full_like(Z, torch.nan), EIGVALS, NO)
-    pool = (_tilted(1.0), EIGVALS, YES)
+    nothing = Plane(torch.full_like(Z, torch.nan), EIGVALS, NO)
+    pool = Plane(_tilted(1.0), EIGVALS, YES)
     assert torch.equal(settle(_tilted(30.0), YES, nothing, pool, COUNT, NOISE)[0], _tilted(30.0))
     normal, valid = settle(_tilted(30.0), NO, nothing, pool, COUNT, NOISE)
     assert torch.equal(normal, _tilted(1.0)) and bool(valid[0])
-    assert not bool(settle(_tilted(30.0), NO, nothing, (Z, EIGVALS, NO), COUNT, NOISE)[1][0])
+    assert not bool(settle(_tilted(30.0), NO, nothing, Plane(Z, EIGVALS, NO), COUNT, NOISE)[1][0])
 
 
 def test_the_pool_plane_answers_where_the_ball_reaches_a_crease_the_pool_does_not() -> None:
-    pool = (Z, EIGVALS, YES)  # a flat, clean pool ...
-    creased = (_tilted(5.0), torch.tensor([[4e-4, 0.3, 0.4]], dtype=torch.float64), YES)  # ... its ball tilted
+    pool = Plane(Z, EIGVALS, YES)  # a flat, clean pool ...
+    creased = Plane(_tilted(5.0), torch.tensor([[4e-4, 0.3, 0.4]], dtype=torch.float64), YES)  # ... its ball tilted
     assert torch.equal(settle(Z, NO, creased, pool, COUNT, NOISE)[0], Z)
-    smooth = (_tilted(5.0), torch.tensor([[1.5e-4, 0.3, 0.4]], dtype=torch.float64), YES)  # residual not 3 × the pool's
+    smooth = Plane(_tilted(5.0), torch.tensor([[1.5e-4, 0.3, 0.4]], dtype=torch.float64), YES)  # residual < 3 × pool's
     assert torch.equal(settle(Z, NO, smooth, pool, COUNT, NOISE)[0], _tilted(5.0))
+    agreeing = Plane(_tilted(0.01), torch.tensor([[4e-4, 0.3, 0.4]], dtype=torch.float64), YES)  # within noise
+    assert torch.equal(settle(Z, NO, agreeing, pool, COUNT, NOISE)[0], _tilted(0.01))

@@ -29,7 +29,7 @@ def _squared_angles(estimator: NormalEstimator, cloud) -> np.ndarray:
     return angles_rad(estimator.estimate(points, query)[0], cloud.normals[query]) ** 2
 
 
-@pytest.mark.parametrize(("kind", "noise"), [("smooth", 0.0025), ("smooth", 0.01), ("cad", 0.025)])
+@pytest.mark.parametrize(("kind", "noise"), [("smooth", 0.0025), ("smooth", 0.01), ("smooth", 0.025), ("cad", 0.025)])
 @pytest.mark.parametrize("method", ["learned", "hybrid"])
 def test_the_cpu_default_is_no_worse_than_pca_beyond_sampling_error(method: str, kind: str, noise: float) -> None:
     clouds = [c for c in build_dataset("val", POINTS, 0, noise_levels=[noise], progress=False) if c.kind == kind]

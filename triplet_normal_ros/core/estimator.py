@@ -54,8 +54,8 @@ class NormalEstimator:
     radius): near edges and folds, where PCA blurs and the network pays for itself, and not on the mild waviness of
     real depth sensors (docs/MODEL.md). On an organized range image the survey is the integral-image window and the
     gate reads the window's parts (`survey.structure`). Over pools, `learned` and `hybrid` keep the network's answer
-    only where it departs from the plane of the whole ball beyond noise (`learned.trust`): on a smooth or very noisy
-    surface that plane is the better estimate.
+    only where it departs from the plane of the whole ball beyond noise (`learned.trust`): on a smooth noisy surface
+    that plane is the better estimate. On a noiseless one any departure is beyond noise, and the network answers.
 
     Every argument is a `Settings` field and is checked by its rule (`settings.reason`); an empty `checkpoint` means
     the shipped one for the device (`defaults.shipped_checkpoint`). The numeric settings may be changed between

@@ -9,8 +9,8 @@ import numpy as np
 #: The methods `NormalEstimator` offers: the network everywhere (weighed against the ball's plane), PCA, or PCA with
 #: the network where it is not flat.
 METHODS = ("learned", "pca", "hybrid")
-#: The learned method draws its k points from the nearest POOL_FACTOR * k points inside the ball; PCA frames and
-#: curvature come from that whole pool.
+#: The learned method draws its k points from the nearest POOL_FACTOR * k points inside the ball; its PCA frame comes
+#: from that whole pool (its curvature, over pools, from the whole ball: `learned.trust`).
 POOL_FACTOR = 4
 #: Training radius, and the offline tools' default: this fraction of the cloud's bounding-box diagonal.
 RADIUS_FRACTION = 0.05

@@ -31,7 +31,8 @@ class Plan:
 
     - `kernel`: 'pca', 'learned' or 'hybrid' (the method).
     - `survey`: how every point gets its first answer: 'window' (integral images of an organized range image, O(1)
-      per pixel), 'pool' (PCA of each point's pool) or 'none' (learned: the network everywhere).
+      per pixel), 'pool' (PCA of each point's pool) or 'none' (learned: the network everywhere, weighed against the
+      ball's plane).
     - `search`: the pool search for the points that need pools: 'kdtree', 'grid', 'voxel', or 'none' (window pca
       needs no pool).
     - `checkpoint`: the network's checkpoint (a shipped name or a path), '' for pca.

@@ -16,6 +16,8 @@ on samples eval does not score (docs/HISTORY.md, "The ball's plane").
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 
 #: The network answers where its normal departs from the ball's plane by more than this many standard errors of the
@@ -25,6 +27,14 @@ DEPARTS_Z = 4.0
 #: The pool's plane answers instead of the ball's where the ball's residual variance (its smallest eigenvalue) is more
 #: than this many times the pool's, and the two planes differ by more than DEPARTS_Z standard errors.
 BALL_RESIDUAL_RATIO = 3.0
+
+
+class Plane(NamedTuple):
+    """A PCA plane per neighbourhood: (B, 3) normals, (B, 3) ascending eigenvalues, (B,) whether it is one."""
+
+    normal: torch.Tensor
+    eigvals: torch.Tensor
+    valid: torch.Tensor
 
 
 def plane_error(eigvals: torch.Tensor, count: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
@@ -39,29 +49,29 @@ def plane_error(eigvals: torch.Tensor, count: torch.Tensor, noise: torch.Tensor)
 
 def departs(a: torch.Tensor, b: torch.Tensor, limit: torch.Tensor) -> torch.Tensor:
     """(B,) bool: whether the unsigned angle between the directions `a` and `b` (B, 3) exceeds `limit` radians."""
-    cosine = (a * b).sum(dim=-1).abs() / (a.norm(dim=-1) * b.norm(dim=-1)).clamp_min(1e-300)
+    lengths = (a.norm(dim=-1) * b.norm(dim=-1)).clamp_min(torch.finfo(a.dtype).tiny)
+    cosine = (a * b).sum(dim=-1).abs() / lengths
     return torch.arccos(cosine.clamp(max=1.0)) > limit
 
 
 def settle(
     network: torch.Tensor,
     ran: torch.Tensor,
-    ball: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
-    pool: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
+    ball: Plane,
+    pool: Plane,
     count: torch.Tensor,
     noise: torch.Tensor,
     z: float = DEPARTS_Z,
     ratio: float = BALL_RESIDUAL_RATIO,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """(normals (B, 3), valid (B,)) from the network's `network` normals where it `ran`, and the planes of the
-    `ball` and of the `pool` of `count` points, each (normal, ascending eigenvalues, valid), with the pool's quadric
-    `noise` variance (all in one unit). `z` and `ratio` are the thresholds (the study tool varies them)."""
-    ball_normal, ball_eigvals, ball_valid = ball
-    pool_normal, pool_eigvals, pool_valid = pool
-    limit = z * plane_error(pool_eigvals, count, noise)
-    answers = ran & (~ball_valid | departs(network, ball_normal, limit))
-    reaches = ball_eigvals[:, 0] > ratio * pool_eigvals[:, 0].clamp_min(0.0)
-    inner = pool_valid & ~answers & (~ball_valid | (reaches & departs(pool_normal, ball_normal, limit)))
-    normal = torch.where(inner.unsqueeze(-1), pool_normal.to(ball_normal.dtype), ball_normal)
-    normal = torch.where(answers.unsqueeze(-1), network.to(ball_normal.dtype), normal)
-    return normal, answers | ball_valid | pool_valid
+    `ball` and of the `pool` of `count` points, with the pool's quadric `noise` variance (all in one unit). `z` and
+    `ratio` are the thresholds (the study tool varies them). A point is valid where the network answered or either
+    plane is one: a pool on a line inside a ball that spans a plane takes the ball's plane."""
+    limit = z * plane_error(pool.eigvals, count, noise)
+    answers = ran & (~ball.valid | departs(network, ball.normal, limit))
+    reaches = ball.eigvals[:, 0] > ratio * pool.eigvals[:, 0].clamp_min(0.0)
+    inner = pool.valid & ~answers & (~ball.valid | (reaches & departs(pool.normal, ball.normal, limit)))
+    normal = torch.where(inner.unsqueeze(-1), pool.normal.to(ball.normal.dtype), ball.normal)
+    normal = torch.where(answers.unsqueeze(-1), network.to(ball.normal.dtype), normal)
+    return normal, answers | ball.valid | pool.valid

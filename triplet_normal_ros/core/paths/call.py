@@ -31,8 +31,8 @@ PCA_CHUNK = 16384
 #: also let more of the queries follow the tree's leaves (16,384: 1.04 × Open3D KNN30's time, 65,536: 0.91 ×).
 TREE_PCA_CHUNK = 65536
 
-#: A chunk kernel: (call, cloud, centres, pools, rows, radius, plane) -> (normals, curvature) as numpy, NaN where
-#: unknown; `plane` is PCA of the whole ball (`pools.pool_and_ball`) for the network's kernels, or None.
+#: A chunk kernel: (call, cloud, centres, pools, rows, radius, ball) -> (normals, curvature) as numpy, NaN where
+#: unknown; `ball` is the plane of the whole ball (`pools.pool_and_ball`) for the network's kernels, or None.
 Kernel = Callable[..., tuple[np.ndarray, np.ndarray]]
 
 
@@ -53,8 +53,9 @@ class RunInfo:
 
     @property
     def network_fraction(self) -> float:
-        """Network passes per estimated point: the share of a whole cloud that the network answered; on a sparse
-        query of a range image hybrid's lattice passes can exceed it (and the points asked for)."""
+        """Network passes per estimated point: the share of a whole cloud the network ran on (over pools its answer
+        stands only where it departs from the ball's plane, `learned.trust`); on a sparse query of a range image
+        hybrid's lattice passes can exceed it (and the points asked for)."""
         return self.network / self.estimated if self.estimated else 0.0
 
 
@@ -94,10 +95,10 @@ class Call:
         return self.k if self.settings.method == "pca" else POOL_FACTOR * self.k
 
     def ball_size(self) -> int:
-        """The ball hybrid's plane comes from: up to PCA_DEFAULT_K nearest points, the whole ball as `pca` takes it
-        by default, or the network's pool where that is larger. A dense cloud holds more points in the ball than a
-        small checkpoint's pool, and a plane over fewer of them is noisier than plain PCA's (docs/RESULTS.md, the
-        matrix)."""
+        """The ball the network's kernels weigh its answers against (`learned.trust`): up to PCA_DEFAULT_K nearest
+        points, the whole ball as `pca` takes it by default, or the network's pool where that is larger. A dense
+        cloud holds more points in the ball than a small checkpoint's pool, and a plane over fewer of them is noisier
+        than plain PCA's (docs/RESULTS.md, the matrix)."""
         return max(self.pool_size(), PCA_DEFAULT_K)
 
     def fit_options(self) -> dict[str, tuple[int, ...]]:

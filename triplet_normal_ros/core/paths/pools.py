@@ -12,7 +12,7 @@ import torch
 
 from ..config.plan import Plan
 from ..learned.patches import Patches, build_patches, to_world
-from ..learned.trust import settle
+from ..learned.trust import Plane, settle
 from ..pca.eigen import EIGEN_GAP
 from ..pca.frames import QuadricGain, quadric_gain, spans_plane, surface_variation
 from ..pca.pools import pool_normals, pool_pca
@@ -71,30 +71,30 @@ def over_pools(
                 continue
             rows = torch.from_numpy(query[out]).to(call.device)
             if whole_ball:
-                pool, plane = pool_and_ball(call, search, cloud, rows, radius)
+                pool, ball = pool_and_ball(call, search, cloud, rows, radius)
             else:
                 with call.timed("neighbours"):
-                    pool, plane = search.pool(rows, radius, call.pool_size()), None
-            normals, curvature = kernel(call, cloud, cloud[rows], pool, rows, radius, plane)
+                    pool, ball = search.pool(rows, radius, call.pool_size()), None
+            normals, curvature = kernel(call, cloud, cloud[rows], pool, rows, radius, ball)
             if lines is not None:
                 line = lines.single(pool, rows).cpu().numpy()
                 normals[line], curvature[line] = np.nan, np.nan
             yield out, normals, curvature
 
 
-def pool_and_ball(call: Call, search: PoolSearch, cloud, rows, radius: float) -> tuple[torch.Tensor, tuple]:
-    """(the network's pool, (normal, ascending eigenvalues, valid) of PCA over the whole ball of up to
-    `Call.ball_size` nearest points, what `pca` answers there) around cloud `rows`. Where the search lists its
-    pools nearest first (the KD-tree, the cell lists) the pool is the ball's first columns, one search for both."""
+def pool_and_ball(call: Call, search: PoolSearch, cloud, rows, radius: float) -> tuple[torch.Tensor, Plane]:
+    """(the network's pool, the plane of PCA over the whole ball of up to `Call.ball_size` nearest points) around
+    cloud `rows`. Where the search lists its pools nearest first (the KD-tree, the cell lists) the pool is the ball's
+    first columns, one search for both; the grid's pools are samples of the ball, so it searches twice."""
     with call.timed("neighbours"):
         ball = search.pool(rows, radius, call.ball_size())
         pool = ball[:, : call.pool_size()] if search.nearest_first else search.pool(rows, radius, call.pool_size())
     with call.timed("pca"):
         normal, eigvals, valid = pool_normals(cloud, cloud[rows], ball, rows, call.compiled)
-    return pool, (normal, eigvals, valid & spans_plane(eigvals))
+    return pool, Plane(normal, eigvals, valid & spans_plane(eigvals))
 
 
-def pca_kernel(call: Call, cloud, centres, pool, rows, _radius, _plane=None) -> tuple[np.ndarray, np.ndarray]:
+def pca_kernel(call: Call, cloud, centres, pool, rows, _radius, _ball=None) -> tuple[np.ndarray, np.ndarray]:
     """PCA of each pool (`pool_normals`: the normal and eigenvalues only, no frame)."""
     with call.timed("pca"):
         normal, eigvals, valid = pool_normals(cloud, centres, pool, rows, call.compiled)
@@ -114,42 +114,40 @@ def tree_pca(call: Call, search: PoolSearch, rows: np.ndarray, radius: float) ->
 
 
 @torch.inference_mode()
-def network_kernel(call: Call, cloud, centres, pool, rows, radius, _plane=None) -> tuple[np.ndarray, np.ndarray]:
+def network_kernel(call: Call, cloud, centres, pool, rows, radius, _ball=None) -> tuple[np.ndarray, np.ndarray]:
     """The network alone: what the range-image path asks of the pools where its own survey has the plane."""
     patches, answers = network_answers(call, cloud, centres, pool, rows, radius)
     return finish(answers, patches.curvature, patches.valid & spans_plane(patches.eigvals))
 
 
 @torch.inference_mode()
-def learned_kernel(call: Call, cloud, centres, pool, rows, radius, plane=None) -> tuple[np.ndarray, np.ndarray]:
-    """The network everywhere; its answer stands where it departs from the plane of the whole ball (`plane`, or the
+def learned_kernel(call: Call, cloud, centres, pool, rows, radius, ball=None) -> tuple[np.ndarray, np.ndarray]:
+    """The network everywhere; its answer stands where it departs from the plane of the whole ball (`ball`, or the
     pool's where none is given) beyond noise, and a plane answers elsewhere (`trust.settle`)."""
     patches, answers = network_answers(call, cloud, centres, pool, rows, radius)
-    fit = fit_planes(call, cloud, centres, pool, radius, plane, patches)
+    fit = fit_planes(call, cloud, centres, pool, radius, ball, patches)
     with call.timed("pca"):
-        normal, valid = settle(answers, fit.own[2], fit.plane, fit.own, fit.count, fit.noise)
-    return finish(normal, surface_variation(fit.plane[1]), valid)
+        normal, valid = settle(answers, fit.own.valid, fit.ball, fit.own, fit.count, fit.noise)
+    return finish(normal, surface_variation(fit.ball.eigvals), valid)
 
 
 class Planes(NamedTuple):
-    """The planes both network kernels weigh the network against, for one chunk of pools."""
+    """What both network kernels weigh the network against, for one chunk of pools."""
 
-    #: The pool's PCA, as `pool_pca` gives it: offsets from the centre, mask, frames, valid.
-    local: torch.Tensor
-    mask: torch.Tensor
+    #: The pool's frames (rows: the principal axes, the normal last), its plane and the ball's (the pool's where no
+    #: ball is given).
     frame: torch.Tensor
-    #: The pool's plane and the ball's (the same where no ball is given): (normal, ascending eigenvalues, valid).
-    own: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
-    plane: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+    own: Plane
+    ball: Plane
     count: torch.Tensor
     #: The quadric gate's statistics of the pool, and its noise variance in the eigenvalues' unit.
     gain: QuadricGain
     noise: torch.Tensor
 
 
-def fit_planes(call: Call, cloud, centres, pool, radius, plane, patches: Patches | None = None) -> Planes:
+def fit_planes(call: Call, cloud, centres, pool, radius, ball: Plane | None, patches: Patches | None = None) -> Planes:
     """PCA of each pool (or the frames and eigenvalues its `patches` already hold), timed as "pca", and the quadric
-    over it, timed as "gate"; the ball's `plane` where one is given, else the pool's."""
+    over it, timed as "gate"; the `ball`'s plane where one is given, else the pool's."""
     with call.timed("pca"):
         if patches is None:
             local, mask, valid, eigvals, frame = pool_pca(cloud, centres, pool)
@@ -157,11 +155,11 @@ def fit_planes(call: Call, cloud, centres, pool, radius, plane, patches: Patches
             mask = pool >= 0
             local = torch.where(mask.unsqueeze(-1), cloud[pool.clamp_min(0)] - centres.unsqueeze(1), 0.0)
             valid, eigvals, frame = patches.valid, patches.eigvals * radius**2, patches.rotation
-        own = (frame[:, 2], eigvals, valid & spans_plane(eigvals))
+        own = Plane(frame[:, 2], eigvals, valid & spans_plane(eigvals))
     with call.timed("gate"):
         gain = quadric_gain(local / radius, mask, frame)
     noise = gain.noise.to(eigvals.dtype) * radius**2
-    return Planes(local, mask, frame, own, own if plane is None else plane, mask.sum(dim=1), gain, noise)
+    return Planes(frame, own, own if ball is None else ball, mask.sum(dim=1), gain, noise)
 
 
 def network_answers(call: Call, cloud, centres, pool, rows, radius) -> tuple[Patches, torch.Tensor]:
@@ -201,17 +199,17 @@ def network(call: Call, patches: Patches) -> torch.Tensor:
 
 
 @torch.inference_mode()
-def hybrid_kernel(call: Call, cloud, centres, pool, rows, radius, plane=None) -> tuple[np.ndarray, np.ndarray]:
+def hybrid_kernel(call: Call, cloud, centres, pool, rows, radius, ball=None) -> tuple[np.ndarray, np.ndarray]:
     """A plane everywhere, and the network where a quadric explains the pool significantly (F > gate) and
     substantially (its RMS height > bend radii) better than the pool's plane; the network's answer stands where it
-    departs from the plane of the whole ball (`plane`, or the pool's where none is given) beyond noise (`trust.settle`).
+    departs from the plane of the whole ball (`ball`, or the pool's where none is given) beyond noise (`trust.settle`).
 
     The gate and the network's patch read the pool, in the frame they were chosen and trained in; the plane reads the
     ball, which on a dense cloud averages more points than a small checkpoint's pool."""
     s = call.settings
-    fit = fit_planes(call, cloud, centres, pool, radius, plane)
-    gated = torch.nonzero(fit.own[2] & (fit.gain.f > s.gate) & (fit.gain.bend > s.bend)).squeeze(1)
-    answers = torch.zeros_like(fit.own[0])
+    fit = fit_planes(call, cloud, centres, pool, radius, ball)
+    gated = torch.nonzero(fit.own.valid & (fit.gain.f > s.gate) & (fit.gain.bend > s.bend)).squeeze(1)
+    answers = torch.zeros_like(fit.own.normal)
     if len(gated):
         with call.timed("patches"):
             patches = build_patches(
@@ -223,14 +221,14 @@ def hybrid_kernel(call: Call, cloud, centres, pool, rows, radius, plane=None) ->
                 centre_ids=rows[gated],
                 point_ids=call.ids,
                 seed=s.seed,
-                pca=(fit.own[1][gated], fit.frame[gated]),
+                pca=(fit.own.eigvals[gated], fit.frame[gated]),
                 compiled=call.compiled,
                 **call.fit_options(),
             )
         answers[gated] = to_world(network(call, patches), patches.rotation).to(answers.dtype)
         call.run.network += len(gated)
-    ran = torch.zeros_like(fit.own[2])
+    ran = torch.zeros_like(fit.own.valid)
     ran[gated] = True
     with call.timed("pca"):
-        normal, answered = settle(answers, ran, fit.plane, fit.own, fit.count, fit.noise)
-    return finish(normal, surface_variation(fit.plane[1]), answered)
+        normal, answered = settle(answers, ran, fit.ball, fit.own, fit.count, fit.noise)
+    return finish(normal, surface_variation(fit.ball.eigvals), answered)

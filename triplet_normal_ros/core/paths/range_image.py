@@ -77,9 +77,10 @@ def window_hybrid(
 
     A window less than PART_SPAN pixels across on either axis (a spinning LiDAR's beams at range, a sliver beside
     an edge) cannot be cut into parts, so the cue is blind there; nor is a window that walls cut below three
-    points a fit. Those points take the pool path's own hybrid (pool PCA, the quadric gate, the network where it
-    opens), as they would without a grid, and the pool's curvature; where the pool determines no plane (one
-    LiDAR ring in the ball) a thin window that does keeps its own answer."""
+    points a fit. Those points take the pool path's own hybrid (the ball's plane, the quadric gate over the pool, the
+    network where it opens and departs from that plane), as they would without a grid, and the ball's curvature;
+    where the pool lies on one scan line (one LiDAR ring) a thin window that determines a plane keeps its own
+    answer."""
     s = call.settings
     with call.timed("survey"):
         fit = image.pca(s.radius, s.range_scale)
@@ -112,10 +113,10 @@ def window_hybrid(
         normals[network_rows[answered]] = answer[answered]
         if progress is not None:
             progress(len(network_rows))
-    for out, answer, pool_curvature in over_pools(call, search, cloud, query, pooled, hybrid_kernel, CHUNK, lines):
+    for out, answer, ball_curvature in over_pools(call, search, cloud, query, pooled, hybrid_kernel, CHUNK, lines):
         answered = np.isfinite(answer).all(axis=1)
         normals[out[answered]] = answer[answered]
-        curvature[out[answered]] = pool_curvature[answered]  # a thin window's curvature is a sliver's
+        curvature[out[answered]] = ball_curvature[answered]  # a thin window's curvature is a sliver's
         if progress is not None:
             progress(len(out))
     return normals, curvature
