@@ -143,6 +143,7 @@ def test_with_a_pool_smaller_than_the_ball_flat_points_take_the_whole_balls_plan
     hybrid, _ = NormalEstimator("hybrid", radius=0.1, device="cpu", checkpoint="lite").estimate(points, query)
     ball, _ = NormalEstimator("pca", radius=0.1, device="cpu").estimate(points, query)
     pool, _ = NormalEstimator("pca", radius=0.1, k=POOL_FACTOR * 64, device="cpu").estimate(points, query)
+
     def degrees(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return np.degrees(np.arccos(np.clip(np.abs(np.einsum("ij,ij->i", a, b)), 0, 1)))[far]
 

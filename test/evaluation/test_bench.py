@@ -35,3 +35,7 @@ def test_bench_writes_methods_side_by_side_searches_matmul_and_conversion(tmp_pa
     assert {(s, p) for s, p, _ in searches} == {(s, p) for s in ("kdtree", "grid", "voxel") for p in ("30", "512")}
     assert all(int(found) > 3 for _, _, found in searches)
     assert "| organized 640x480 xyzrgb | 307200 |" in block
+    memory = re.findall(r"^\| (pca \(windows\)) \| (\d+) \| (\d+) \| (-?\d+) \|$", block, re.M)
+    assert len(memory) == 1  # only the method asked for, each in its own process
+    _, idle, peak, grown = memory[0]
+    assert 100 < int(idle) <= int(peak) and int(grown) > 10  # torch alone is ~300 MB; a frame's arrays add to it

@@ -6,7 +6,8 @@ Two clouds: a simulated 640x480 depth frame (simulation.depth_camera, radius 0.0
 from the whole cloud; points/s per stage = timed queries / seconds in that stage, and the last columns extrapolate
 to the whole cloud. Machines are noisy, so the table also gives each method's time as a ratio to PCA at k = 30
 (Open3D's usual cap) measured in the same run, next to the machine's plain matmul GFLOP/s and the network's share
-of it. The PointCloud2 conversion rows are the per-frame overhead the node adds.
+of it. The PointCloud2 conversion rows are the per-frame overhead the node adds; on a CPU a last table gives each
+method's resident memory, idle and over a whole frame (`bench_memory`).
 
 When Open3D or OpenCV's `RgbdNormals` imports, or PCL's headers are installed (none is a dependency), their
 estimators run on the same clouds as anchors (`evaluation.anchors`): a second table gives every method's and every
@@ -239,6 +240,7 @@ def run(
     from tqdm import tqdm
 
     from ..simulation.depth_camera import depth_frame
+    from .bench_memory import memory_rows
     from .bench_pointcloud2 import conversion_rows
     from .report import update_section
 
@@ -273,7 +275,8 @@ def run(
     searches = neighbour_rows(clouds[0].points, clouds[0].shape, dev, min(queries, 20_000))
     gflops = matmul_gflops()
     conversions = conversion_rows()
-    text = markdown(rows, searches, gflops, network_mflop(checkpoint), conversions, command)
+    memory = memory_rows(method) if dev == "cpu" else []
+    text = markdown(rows, searches, gflops, network_mflop(checkpoint), conversions, command, memory)
     if found:
         text += "\n\n" + anchors_markdown(rows, anchor_rows, found, skipped)
     print(text)
@@ -320,9 +323,10 @@ def anchors_markdown(rows: list[Row], anchor_rows: list[outside.AnchorRow], foun
     return "\n".join(lines)
 
 
-def markdown(rows, searches, gflops, net, conversions, command: str) -> str:
+def markdown(rows, searches, gflops, net, conversions, command: str, memory=()) -> str:
     import torch
 
+    from .bench_memory import memory_markdown
     from .bench_pointcloud2 import conversion_markdown
 
     k, mflop = net
@@ -374,6 +378,8 @@ def markdown(rows, searches, gflops, net, conversions, command: str) -> str:
         "",
         *conversion_markdown(conversions),
     ]
+    if memory:
+        lines += ["", *memory_markdown(list(memory))]
     return "\n".join(lines)
 
 
