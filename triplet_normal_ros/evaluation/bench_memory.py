@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 #: (label, NormalEstimator keyword arguments): the node's defaults on a CPU and the other methods and checkpoints.
 METHODS = (
@@ -23,22 +24,28 @@ METHODS = (
 )
 
 _PROBE = """
-import json, sys
+import json, os, sys
 import numpy as np
 from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.evaluation.bench_memory import status_mb
 from triplet_normal_ros.simulation.depth_camera import depth_frame
-
-def status(field):
-    with open("/proc/self/status") as f:
-        return next(int(line.split()[1]) for line in f if line.startswith(field + ":")) / 1024
 
 frame = depth_frame(0)
 points = frame.points.reshape(-1, 3).astype(np.float64)
 estimator = NormalEstimator(device="cpu", radius=0.05, **json.loads(sys.argv[1]))
-idle = status("VmRSS")
+idle = status_mb(os.getpid(), "VmRSS")
 estimator.estimate(points, shape=frame.points.shape[:2])
-print(json.dumps({"idle": idle, "peak": status("VmHWM")}))
+print(json.dumps({"idle": idle, "peak": status_mb(os.getpid(), "VmHWM")}))
 """
+
+
+def status_mb(pid: int, field: str = "VmRSS") -> float:
+    """A memory field of process `pid` in MB (2^20 bytes), from /proc/<pid>/status: VmRSS, its resident set now, or
+    VmHWM, the most it ever held."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(f"{field}:"):
+            return int(line.split()[1]) / 1024
+    raise RuntimeError(f"no {field} for process {pid}")
 
 
 def measure(options: dict) -> tuple[float, float]:

@@ -17,13 +17,13 @@ import time
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 
+from ...evaluation.bench_memory import status_mb
 from ...io.pointcloud2 import NORMAL_FIELDS, make_cloud, read_field, read_xyz
 from .replay import Frame, ReplayClient, load_frame
 
@@ -95,14 +95,6 @@ def cloud_pool(frame: Frame | None = None) -> list[PoolCloud]:
 # -- memory ---------------------------------------------------------------------------------------------------------
 
 
-def rss_mb(pid: int) -> float:
-    """Resident set size of process ``pid`` in MB (VmRSS of /proc/<pid>/status)."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    raise RuntimeError(f"no VmRSS for process {pid}")
-
-
 class RssSampler:
     """Samples a process's RSS every ``every`` s on a thread: (seconds since start, MB)."""
 
@@ -116,7 +108,7 @@ class RssSampler:
         start = time.monotonic()
         while not self._stop.is_set():
             try:
-                self.samples.append((time.monotonic() - start, rss_mb(self.pid)))
+                self.samples.append((time.monotonic() - start, status_mb(self.pid)))
             except (OSError, RuntimeError):  # the process is gone
                 return
             self._stop.wait(self.every)
