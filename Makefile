@@ -62,7 +62,7 @@ $(JAZZY_STAMP): Makefile setup.py package.xml
 # `make demo`: colcon-build into out/ws, run the installed node, replay the shipped Kinect frames, draw out/*.png.
 WS := out/ws
 demo: venv
-	@echo "make demo: colcon build into $(WS)/ (its log: $(WS)/log/latest_build)"
+	@echo "make demo: colcon build into $(WS)/, the CPU kernels compiled into it (its log: $(WS)/log/latest_build)"
 	@$(VENV)/bin/colcon --log-base $(WS)/log build --base-paths . \
 		--build-base $(WS)/build --install-base $(WS)/install --event-handlers console_direct- console_start_end- \
 		|| { echo "make demo: colcon build failed; see $(WS)/log/latest_build" >&2; exit 1; }
@@ -87,7 +87,7 @@ test: venv lint
 JAZZY_TESTS := test/ros/test_transport.py test/ros/test_large_clouds.py test/ros/test_node_process.py \
 	test/ros/test_params.py test/ros/test_one_rule.py test/test_launch.py test/ros/test_launch_process.py \
 	test/ros/test_managed_node.py test/ros/test_watchdog_exit.py test/ros/test_stop_while_starting.py \
-	test/ros/test_visuals_process.py test/pipeline test/cli/test_bag.py
+	test/ros/test_visuals_process.py test/ros/test_first_start.py test/pipeline test/cli/test_bag.py
 test-jazzy: venv-jazzy
 	$(JAZZY_PY) -m pytest $(JAZZY_TESTS) -q --strict-markers
 

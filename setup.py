@@ -1,11 +1,55 @@
 """ament_python package: the ROS 2 node `node`, its managed (lifecycle) form `managed_node`, and the offline CLI
 `triplet-normal`."""
 
+import os
+import subprocess
+import sys
 from glob import glob
 
 from setuptools import find_packages, setup
+from setuptools.command.develop import develop
+from setuptools.command.install import install
 
 PACKAGE = "triplet_normal_ros"
+#: Set (to anything) to leave the kernels for the first start to compile.
+NO_WARM = "TRIPLET_NORMAL_NO_WARM"
+
+
+def warm_kernels(site: str) -> None:
+    """Compile the CPU kernels into the numba cache of the copy of the package under `site`, in a fresh interpreter
+    whose first path entry is `site` (so it imports that copy), so that the node's first start loads them in about a
+    second instead of compiling them for half a minute (docs/CHOOSING.md, "The first start"). A failure is a warning:
+    the package works without the cache, and its first start compiles the kernels."""
+    if os.environ.get(NO_WARM):
+        return
+    print(f"{PACKAGE}: compiling the CPU kernels into the install (about half a minute; {NO_WARM}=1 skips it)")
+    command = [sys.executable, "-m", f"{PACKAGE}.cli.main", "warm"]
+    done = subprocess.run(command, cwd=site, capture_output=True, text=True)
+    if done.returncode:
+        lines = (done.stderr or done.stdout).strip().splitlines()
+        print(f"{PACKAGE}: warning: kernels not compiled ahead, the first start will: {lines[-1] if lines else ''}")
+    else:
+        print(f"{PACKAGE}: {done.stdout.strip()}")
+
+
+class InstallAndWarm(install):
+    """`setup.py install` (what colcon build runs), then the kernels into the installed copy's cache. Not into a
+    staging root (a wheel, a Debian package): the files move from there, perhaps to another CPU model."""
+
+    def run(self) -> None:
+        super().run()
+        if not self.root:
+            warm_kernels(self.install_lib)
+
+
+class DevelopAndWarm(develop):
+    """`setup.py develop` (colcon build --symlink-install), then the kernels into the source tree's cache."""
+
+    def run(self) -> None:
+        super().run()
+        if not self.uninstall:
+            warm_kernels(os.path.dirname(os.path.realpath(__file__)))
+
 
 setup(
     name=PACKAGE,
@@ -27,6 +71,7 @@ setup(
         "cluster": ["ray"],
     },
     zip_safe=False,
+    cmdclass={"install": InstallAndWarm, "develop": DevelopAndWarm},
     maintainer="triplet_normal_ros maintainers",
     maintainer_email="maintainers@triplet-normal-ros.invalid",
     description="Learned (triplet) and PCA surface normals for sensor_msgs/PointCloud2.",

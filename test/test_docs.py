@@ -532,13 +532,17 @@ def test_node_path_table_is_the_plans() -> None:
 
 def test_node_quotes_the_start_up_line_in_its_current_format() -> None:
     from triplet_normal_ros.core.config.plan import Plan
+    from triplet_normal_ros.core.kernels import CacheCount
     from triplet_normal_ros.core.throughput import Throughput
 
-    line = Throughput(points_per_second=2400.0, network_share=0.07, plan=Plan("hybrid", "window", "kdtree", "range"))
+    plan = Plan("hybrid", "window", "kdtree", "range")
+    line = Throughput(2400.0, 0.07, plan, warm_up_s=0.5, cache=CacheCount(23, 0))
     text = line.describe("cpu")
     text = re.sub(r"about [\d,]+ points/s", "about N points/s", text)
     text = re.sub(r"~[\d.]+ s", "~T s", text)
     text = re.sub(r"\d+% of probe", "P% of probe", text)
+    text = re.sub(r"warm-up [\d.]+ s, \d+ kernels loaded from the cache, \d+ compiled", "warm-up W s, L kernels loaded "
+                  "from the cache, C compiled", text)  # fmt: skip
     assert text in _read("docs/NODE.md")
 
 

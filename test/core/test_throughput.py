@@ -5,7 +5,7 @@ import threading
 import numpy as np
 import pytest
 
-from triplet_normal_ros.core import throughput
+from triplet_normal_ros.core import kernels, throughput
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.errors import EstimationCancelled
 
@@ -36,6 +36,15 @@ def test_the_probe_runs_the_path_an_organized_frame_takes() -> None:
     assert throughput.measure(NormalEstimator("pca", radius=0.05, k=30, device="cpu")).search == "kdtree"
     text = throughput.measure(NormalEstimator("pca", radius=0.05, device="cpu")).describe("cpu")
     assert "integral-image windows" in text
+
+
+def test_the_line_says_what_the_warm_up_found_in_the_kernels_cache() -> None:
+    """On a CPU the warm-up loads or compiles every kernel (the first start's counts: test_first_start.py); a second
+    measurement in the same process, as after a parameter change, finds them in memory."""
+    kernels.warm()
+    measured = throughput.measure(NormalEstimator("pca", radius=0.05, device="cpu"))
+    assert measured.cache == kernels.CacheCount(0, 0)
+    assert "; warm-up " in measured.describe("cpu") and "s, kernels already in memory" in measured.describe("cpu")
 
 
 def test_a_set_cancel_event_ends_the_probe_before_it_compiles_or_estimates() -> None:

@@ -1,4 +1,4 @@
-"""`triplet-normal estimate | bag | bags | eval | train | ablate | bench`: the offline command line.
+"""`triplet-normal estimate | bag | bags | eval | train | ablate | bench | warm`: the offline command line.
 
 This module holds the parser and the error policy; each subcommand lives in its own module with `add_arguments`
 and `run`. Heavy modules (torch, training data, matplotlib) are imported inside the handlers, so `--help` is instant
@@ -16,7 +16,7 @@ import sys
 from collections.abc import Sequence
 
 from ..errors import TripletNormalError, UsageError
-from . import ablate, bag, bags, bench, estimate, evaluate, train
+from . import ablate, bag, bags, bench, estimate, evaluate, train, warm
 
 PROG = "triplet-normal"
 #: (name, module, help); train and ablate add their options only when they are the command (they import torch).
@@ -28,6 +28,7 @@ COMMANDS = (
     ("train", train, "train the encoder and regressor"),
     ("ablate", ablate, "the paper's ablations on the validation set"),
     ("bench", bench, "points/s per stage of pca, learned and hybrid on a simulated depth frame and a torus"),
+    ("warm", warm, "compile the CPU kernels into numba's cache now (colcon build does), not at the first start"),
 )
 _HEAVY = ("train", "ablate")
 #: Optional modules, by the PyPI distribution that installs them (`pip install <it>`): a step that works on a native
@@ -146,3 +147,7 @@ def one_line(error: object) -> str:
 
 def _command(argv: Sequence[str]) -> str | None:
     return next((a for a in argv if not a.startswith("-")), None)
+
+
+if __name__ == "__main__":  # `python -m triplet_normal_ros.cli.main`: what setup.py runs against the installed copy
+    sys.exit(main())

@@ -17,13 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import EstimationCancelled
+from . import kernels
 from .config.plan import Plan, compiled
 from .estimator import NormalEstimator
-from .learned import patches_numba, scales_numba
-from .pca import pools_numba
-from .range_image import check_numba, sides_numba, survey_numba
-from .search import kdtree_numba
 
 #: The probe images (height, width): the corner at two resolutions, enough points to time the network, few enough to
 #: keep start-up within seconds.
@@ -54,11 +50,13 @@ class Throughput:
     network_share: float
     #: The path the probe took: an organized camera frame's (`plan.Plan`).
     plan: Plan
-    #: The first (warm-up) call's seconds: it compiles the CPU's window kernels when their cache is cold
-    #: (`range_image/image_numba.py`), so the first cloud does not.
+    #: The warm-up's seconds: it loads the CPU's compiled kernels from numba's cache, or compiles them where that is
+    #: cold (`kernels.py`), and makes the first call, so the first cloud does neither.
     warm_up_s: float = 0.0
     #: Seconds each call costs whatever its size.
     per_call_s: float = 0.0
+    #: What the warm-up found in the kernels' cache (None where the device runs no compiled kernels: a GPU).
+    cache: kernels.CacheCount | None = None
 
     @property
     def search(self) -> str:
@@ -72,7 +70,8 @@ class Throughput:
     def describe(self, device: str) -> str:
         frame = self.frame_s
         share = f", {self.network_share:.0%} of probe points through the network" if self.network_share else ""
-        warm = f"; warm-up {self.warm_up_s:.1f} s (kernels compiled or loaded)" if self.warm_up_s >= 1 else ""
+        cache = f", {self.cache.describe()}" if self.cache is not None else ""
+        warm = f"; warm-up {self.warm_up_s:.1f} s{cache}"
         return (
             f"expected throughput on {device}: about {self.points_per_second:,.0f} points/s "
             f"(~{frame:.1f} s for a full 640x480 organized frame; {self.plan.describe()}{share}){warm}"
@@ -90,11 +89,8 @@ def measure(
     between the kernels' modules, whose first compilation takes seconds each, and inside each estimate."""
     coarse, fine = probe_cloud(estimator.radius, seed), probe_cloud(estimator.radius, seed, FINE_PROBE_SHAPE)
     start = time.perf_counter()
-    if compiled(estimator.device.type):  # every compiled kernel, whichever the method: a reload finds them ready
-        for kernels in (check_numba, survey_numba, sides_numba, pools_numba, patches_numba, scales_numba, kdtree_numba):
-            if cancel is not None and cancel.is_set():
-                raise EstimationCancelled("the throughput probe was cancelled")
-            kernels.warm()
+    # every compiled kernel, whichever the method: a reload with another method finds them ready
+    cache = kernels.warm(cancel) if compiled(estimator.device.type) else None
     estimator.estimate(coarse, cancel=cancel, shape=PROBE_SHAPE)  # warm-up: first-call allocations, thread pools
     warm_up = time.perf_counter() - start
     coarse_s = _fastest(estimator, coarse, PROBE_SHAPE, points_dominate_s, cancel)
@@ -104,7 +100,7 @@ def measure(
         fine_s = _fastest(estimator, fine, FINE_PROBE_SHAPE, points_dominate_s, cancel)
     run = estimator.last_run
     rate, per_call = split(len(coarse), coarse_s, len(fine), fine_s)
-    return Throughput(rate, run.network_fraction, run.plan, warm_up, per_call)
+    return Throughput(rate, run.network_fraction, run.plan, warm_up, per_call, cache)
 
 
 def split(coarse_points: int, coarse_s: float, fine_points: int, fine_s: float | None) -> tuple[float, float]:

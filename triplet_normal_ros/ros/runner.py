@@ -3,12 +3,12 @@ start, the executor in a thread of its own, the worker loop in the main thread, 
 exit code.
 
 The stop signals belong to `stopper.STOPPER` from before rclpy starts (from before the node's imports, through
-ros/entry.py). A stop while the node starts (the first start compiles the kernels for half a minute) ends the process
-with exit code 0 within 2 s: the node is built without starting, its `start` checks the stop between stages, and a
-main thread inside one long compile is left behind by the stopper's timer; either way the node and rclpy are shut
-down first, which removes the DDS shared-memory segment. The worker serves in the process's main thread, where
-torch's OpenMP teams run faster (docs/HISTORY.md, "Organized clouds", the node's overhead). See docs/NODE.md,
-"Shutdown", for the order of a shutdown and the exit codes.
+ros/entry.py). A stop while the node starts (with an empty kernel cache it compiles the kernels for half a minute)
+ends the process with exit code 0 within 2 s: the node is built without starting, its `start` checks the stop
+between stages, and a main thread inside one long compile is left behind by the stopper's timer; either way the node
+and rclpy are shut down first, which removes the DDS shared-memory segment. The worker serves in the process's main
+thread, where torch's OpenMP teams run faster (docs/HISTORY.md, "Organized clouds", the node's overhead). See
+docs/NODE.md, "Shutdown", for the order of a shutdown and the exit codes.
 """
 
 from __future__ import annotations

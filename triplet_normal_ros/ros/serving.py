@@ -143,7 +143,7 @@ class ServingMixin:
     def _configure(self, stop: threading.Event | None = None) -> tuple[NormalEstimator, NodeSettings]:
         """Parameters to an estimator: declare and validate them, build it, say what a frame will cost; ConfigError
         with the reason when that cannot be done, EstimationCancelled between stages once `stop` is set (the warm-up
-        compiles the kernels for half a minute on a first start)."""
+        compiles the kernels for half a minute where their cache is empty)."""
         settings = self._declare_parameters()
         estimator = self._build(settings, ConfigError)
         self._log_expected_throughput(estimator, stop)  # before the worker sees it: the probe uses the estimator alone
@@ -185,7 +185,7 @@ class ServingMixin:
     def _log_expected_throughput(self, estimator: NormalEstimator, stop: threading.Event | None = None) -> None:
         """Measure the estimator on a small probe cloud and say what a full frame will cost on this device; a stop
         ends the probe (EstimationCancelled)."""
-        # Said before the probe: on a CPU a first start compiles the kernels in it, for half a minute.
+        # Said before the probe: on a CPU with an empty kernel cache it compiles the kernels, for half a minute.
         self.get_logger().info(f"measuring the expected throughput on {estimator.device}")
         try:
             rate = throughput.measure(estimator, cancel=stop)

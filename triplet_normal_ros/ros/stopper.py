@@ -3,7 +3,8 @@
 A stop sets `Stopper.event`, which the main thread checks between the stages of its start and in its serving loop,
 and calls what the runner armed for the phase it is in: `cancel` at once (the estimate in flight), and `late`,
 `grace` seconds later from a timer thread, for a main thread that has not finished stopping by then: it may be
-inside one compile or torch call that no check interrupts (the first start compiles the kernels for half a minute).
+inside one compile or torch call that no check interrupts (a start with an empty kernel cache compiles the kernels
+for half a minute).
 
 Python runs a signal handler in the main thread between bytecodes, which is late when that thread is inside one long
 call; so the handler only sets the event, and the signal also wakes a thread of its own (`signal.set_wakeup_fd`) that

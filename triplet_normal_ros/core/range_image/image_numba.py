@@ -10,8 +10,8 @@ one-sided alternatives, the box sums, the eigen-decomposition and the validity t
 Each kernel takes a band of rows (or columns) and releases the GIL, and `bands.bands` runs the bands on as many
 Python threads as torch uses (that module says why not numba's own parallel layers).
 Division follows numpy (`error_model="numpy"`: a point at the origin divides by a zero range into inf, as torch does,
-instead of raising). Compiled code is cached on disk (numba's `cache=True`), so only the first process after an
-install pays the compile (6-20 s here), and it pays it at start-up: the node's throughput probe calls `warm`.
+instead of raising). Compiled code is cached on disk (numba's `cache=True`); colcon build compiles it into the
+install and the node's start-up loads it (`core/kernels.py`).
 """
 
 from __future__ import annotations
