@@ -1,5 +1,6 @@
 # User-facing targets: `make demo`, `make test` and `make test-fast`. Each refreshes .venv/ through `make venv`;
-# `make test` also tests on ROS 2 Jazzy in .venv-jazzy/ (`make test-jazzy`).
+# `make test` also tests on ROS 2 Jazzy in .venv-jazzy/ (`make test-jazzy`) and a subset on Python 3.10 and 3.12 in
+# .venv-py3.10/ and .venv-py3.12/ (`make test-pythons`).
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
@@ -25,7 +26,7 @@ COMMON := \
 	pytest==9.2.0 hypothesis==6.170.15 ruff==0.17.6 vermin==1.9.2
 PINS := $(COMMON) $(KILTED)
 
-.PHONY: venv venv-jazzy demo test test-jazzy test-fast lint bench eval train clean
+.PHONY: venv venv-jazzy demo test test-jazzy test-pythons test-fast lint bench eval train clean
 
 venv: $(STAMP)
 
@@ -81,6 +82,7 @@ lint: venv
 test: venv lint
 	$(PY) -m pytest test -q --strict-markers
 	@$(MAKE) --no-print-directory test-jazzy
+	@$(MAKE) --no-print-directory test-pythons
 
 # `make test-jazzy`: on Jazzy, what differs between distributions: the colcon-built node as a process, its transport
 # (full 640x480 frames from another process), parameters, the launch file, the per-message step and `bag`.
@@ -90,6 +92,38 @@ JAZZY_TESTS := test/ros/test_transport.py test/ros/test_large_clouds.py test/ros
 	test/ros/test_visuals_process.py test/ros/test_first_start.py test/pipeline test/cli/test_bag.py
 test-jazzy: venv-jazzy
 	$(JAZZY_PY) -m pytest $(JAZZY_TESTS) -q --strict-markers
+
+# `make test-pythons`: the core, its compiled kernels from an empty cache, a fresh colcon build's node on a real frame
+# and `bag`, on Python 3.10 (Humble's Ubuntu 22.04) and 3.12 (native Jazzy and Kilted on Ubuntu 24.04), with Kilted's
+# wheels (they exist for cp310-cp312). The interpreter: python3.X on PATH, else pyenv's newest 3.X. There torch==2.13.0
+# is PyPI's CUDA build (about 2.6 GB of downloads, 5 GB installed per venv), which runs on the CPU. numpy, scipy and
+# hypothesis: .venv's pins on 3.12, and on 3.10 the newest releases that still support it.
+OTHER_PYTHONS := 3.10 3.12
+PY_TESTS := test/test_python_version.py test/core/test_estimator.py test/core/test_kernels.py \
+	test/ros/test_first_start.py test/cli/test_bag.py
+OTHER_PINS := torch==2.13.0 numba==0.68.1 llvmlite==0.50.0 \
+	colcon-core==0.21.3 colcon-ros==0.5.0 colcon-python-setup-py==0.2.9 colcon-bash==0.5.0 "setuptools<80" \
+	rosbags==0.11.9 safetensors==0.8.0 trimesh==5.2.0 manifold3d==3.5.4 rtree==1.4.1 pypcd4==1.5.1 tqdm==4.70.1 \
+	pytest==9.2.0 $(KILTED)
+PINS_3.10 := numpy==2.2.6 scipy==1.15.3 hypothesis==6.168.5
+PINS_3.12 := numpy==2.4.6 scipy==1.17.1 hypothesis==6.170.15
+# python3.X that runs (a pyenv shim of an unselected version does not), else pyenv's newest 3.X; empty if neither.
+find_python = $(shell for p in python$(1) $$(ls -d $$HOME/.pyenv/versions/$(1).*/bin/python$(1) 2>/dev/null | sort -V \
+	| tail -1); do "$$p" -c pass 2>/dev/null && { command -v "$$p"; break; }; done)
+test-pythons: $(addprefix test-py,$(OTHER_PYTHONS))
+test-py%:
+	@if [ -z "$(call find_python,$*)" ]; then \
+		echo "make test-py$*: no Python $* here (neither python$* nor pyenv's $*.x): its subset did not run"; \
+	else $(MAKE) --no-print-directory .venv-py$*/.installed && .venv-py$*/bin/python -m pytest $(PY_TESTS) -q \
+		--strict-markers -p no:cacheprovider; fi
+.venv-py%/.installed: Makefile setup.py package.xml
+	@echo "make test-py$*: virtual environment with $(call find_python,$*) in .venv-py$*/ (first run: a few minutes)"
+	@test -x .venv-py$*/bin/python || $(call find_python,$*) -m venv .venv-py$*
+	@.venv-py$*/bin/python -m pip install -q --upgrade pip
+	@.venv-py$*/bin/python -m pip install -q $(OTHER_PINS) $(PINS_$*)
+	@.venv-py$*/bin/python -m pip install -q --no-deps --no-build-isolation -e . --config-settings editable_mode=compat \
+		>.venv-py$*/install.log 2>&1 || { cat .venv-py$*/install.log; exit 1; }
+	@touch $@
 
 # `make test-fast`: the tests not marked `slow`, for the edit-test loop; `make test` before committing.
 test-fast: venv
@@ -106,4 +140,4 @@ bench: venv
 	$(VENV)/bin/triplet-normal bench --out docs/RESULTS.md --update-tracked
 
 clean:
-	rm -rf $(VENV) $(JAZZY_VENV) build install log out .pytest_cache .hypothesis .ruff_cache
+	rm -rf $(VENV) $(JAZZY_VENV) .venv-py* build install log out .pytest_cache .hypothesis .ruff_cache
