@@ -13,6 +13,8 @@ from setuptools.command.install import install
 PACKAGE = "triplet_normal_ros"
 #: Set (to anything) to leave the kernels for the first start to compile.
 NO_WARM = "TRIPLET_NORMAL_NO_WARM"
+#: A hang guard for the compilation (half a minute on a quiet 2-core machine), so a stuck one cannot stall the build.
+WARM_TIMEOUT_S = 900
 
 
 def warm_kernels(site: str) -> None:
@@ -24,7 +26,11 @@ def warm_kernels(site: str) -> None:
         return
     print(f"{PACKAGE}: compiling the CPU kernels into the install (about half a minute; {NO_WARM}=1 skips it)")
     command = [sys.executable, "-m", f"{PACKAGE}.cli.main", "warm"]
-    done = subprocess.run(command, cwd=site, capture_output=True, text=True)
+    try:
+        done = subprocess.run(command, cwd=site, capture_output=True, text=True, timeout=WARM_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        print(f"{PACKAGE}: warning: kernels not compiled ahead within {WARM_TIMEOUT_S} s, the first start will")
+        return
     if done.returncode:
         lines = (done.stderr or done.stdout).strip().splitlines()
         print(f"{PACKAGE}: warning: kernels not compiled ahead, the first start will: {lines[-1] if lines else ''}")

@@ -29,8 +29,8 @@ xyz = load_frame("table_scene_mug").xyz[200:260, 280:360]
 points = xyz.reshape(-1, 3)
 bare = points[np.isfinite(points).all(axis=1)]
 after = {}
-for method, checkpoint in [("pca", ""), ("pca", "")] + [(m, c) for m in ("learned", "hybrid")
-                                                     for c in ("", "default", "lite", "range")]:
+runs = [("pca", "")] + [(m, c) for m in ("learned", "hybrid") for c in ("", "default", "lite", "range")]
+for method, checkpoint in runs:
     estimator = NormalEstimator(method=method, radius=0.05, checkpoint=checkpoint, device="cpu")
     before = kernels.count()
     estimator.estimate(points, shape=xyz.shape[:2])

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import PACKAGE, STARTUP_S, NodeProcess, installed_env, params_yaml, site_packages
+from conftest import PACKAGE, STARTUP_S, NodeProcess, colcon_build, installed_env, params_yaml, site_packages
 from probe_client import matched_client
 
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, read_field
@@ -25,6 +25,12 @@ pytestmark = pytest.mark.slow  # a colcon build (with the kernels) and a node pr
 IN, OUT = "/tn_first/points", "/tn_first/normals"
 #: A hang guard only: under a second of estimation on a quiet machine.
 ANSWER_TIMEOUT_S = 300.0
+
+
+@pytest.fixture(scope="module")
+def install_prefix(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A colcon install of its own: the session's shared one may hold caches that other tests' nodes wrote."""
+    return colcon_build(tmp_path_factory.mktemp("ws_first_start"))
 
 
 def test_the_build_compiled_the_kernels_into_the_install(install_prefix: Path) -> None:

@@ -83,6 +83,6 @@ def warm(cancel: threading.Event | None = None) -> CacheCount:
 
 
 def cache_root() -> str:
-    """The folder that holds every kernel's cache: the common parent of their `__pycache__` folders (numba mirrors
-    the package's folders under NUMBA_CACHE_DIR when that is set)."""
+    """The folder that holds every kernel's cache: the common parent of their `__pycache__` folders, or NUMBA_CACHE_DIR
+    when that is set (numba keeps one subfolder per module folder there, named by a hash of its path)."""
     return os.path.commonpath([d.stats.cache_path for d in dispatchers()])
