@@ -268,3 +268,20 @@ def test_the_compiled_snap_to_sides_is_the_torch_snap(name: str) -> None:
     assert snapped.mean() > 0.01, "too few pixels snapped to compare the backends"
     agree = np.abs((reference * compiled).sum(axis=1)) > 1 - 1e-6
     assert (~agree).sum() <= MAY_DIFFER * len(pixels) + 1, (~agree).sum()
+
+
+@pytest.mark.parametrize("name", sorted(FRAMES))
+def test_the_one_pass_normals_are_the_window_fit_finished(name: str) -> None:
+    """`pca`'s one pass per pixel (`CompiledImage.normals`) answers what the window fit and its finish answer, bit
+    for bit: the same windows, moments and eigen-decomposition; and the holes it skips are NaN, as the finish makes
+    them. (The windows against torch's, whose searches bisect without a guess: the tests above.)"""
+    points, shape, radius, scale, _ = FRAMES[name]
+    cloud = torch.from_numpy(points)
+    pitch = range_pitch(cloud, shape)
+    fitted = CompiledImage(cloud, shape, pitch)
+    fitted.pca(radius, scale)
+    normals, curvature = CompiledImage(cloud, shape, pitch).normals(radius, scale)
+    ref_normals, ref_curvature = fitted.finish()
+    assert np.isfinite(normals).all(axis=1).sum() > 1000
+    np.testing.assert_array_equal(normals, ref_normals)
+    np.testing.assert_array_equal(curvature, ref_curvature)

@@ -45,16 +45,18 @@ def range_image_path(
 
 
 def window_pca(call: Call, image: MomentImage, query: np.ndarray, progress) -> tuple[np.ndarray, np.ndarray]:
-    """PCA of every pixel's window at once (`range_image.image`), then the query's rows."""
+    """PCA of every pixel's window at once (`range_image.image`; compiled, one pass per pixel to the finished answer),
+    then the query's rows."""
     s = call.settings
-    fit = image.pca(s.radius, s.range_scale)
-    finite = image.finite.reshape(-1)
+    if image.compiled:
+        normals, curvature = image.normals(s.radius, s.range_scale)
+        finite = image.finite.reshape(-1)
+    else:
+        fit = image.pca(s.radius, s.range_scale)
+        finite = image.finite.reshape(-1)
+        normals, curvature = finish(fit.normal, surface_variation(fit.eigvals), fit.valid & finite)
     whole = len(query) == len(finite) and bool(query[0] == 0) and bool((np.diff(query) == 1).all())
     call.run.estimated = int(finite.sum()) if whole else int(finite[torch.from_numpy(query)].sum())
-    if image.compiled:
-        normals, curvature = image.finish()
-    else:
-        normals, curvature = finish(fit.normal, surface_variation(fit.eigvals), fit.valid & finite)
     if progress is not None:
         progress(len(query))
     return (normals, curvature) if whole else (normals[query], curvature[query])

@@ -99,6 +99,15 @@ class CompiledImage:
         bands(_finish, n, self.fit["normal"], self.fit["eigvals"], self.fit["valid"], finite, normals, curvature)
         return normals, curvature
 
+    def normals(self, radius: float, range_scale: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """`pca` then `finish` in one pass (`window_normals`), when nothing else reads the windows; `finite` then
+        reads the ranges it computed."""
+        normals, curvature, ranges = window_normals(
+            self.points.numpy(), self.pitch_row.numpy(), self.pitch_col.numpy(), float(radius), float(range_scale)
+        )
+        self.fit = {"ranges": ranges}
+        return normals, curvature
+
     def pca_on_slope(self, normal: torch.Tensor) -> WindowPCA:
         """`MomentImage.pca_on_slope`, after `pca`."""
         out = window_pca_on_slope(
@@ -119,6 +128,7 @@ def warm() -> CompiledImage:
     grid = warm_grid()
     pitch = [np.full(12, 0.1, dtype=np.float32), np.full(16, 0.1, dtype=np.float32)]  # the grid's rays, 0.1 rad apart
     image = CompiledImage(torch.from_numpy(grid.reshape(-1, 3)), grid.shape[:2], tuple(map(torch.from_numpy, pitch)))
+    image.normals(0.3, 0.1)
     image.pca(0.3, 0.1)
     image.finish()
     window_pca_on_slope(grid, image.fit, pitch[0], pitch[1], 0.3, np.nan_to_num(image.fit["normal"]))
@@ -130,6 +140,44 @@ def window_pca(
 ) -> dict[str, np.ndarray]:
     """Window PCA of every pixel of an (H, W, 3) organized cloud (NaN holes) with the per-row and per-column ray
     pitch: the moment table and offset `MomentImage` keeps, and the `WindowPCA` fields, as numpy arrays."""
+    tables = _tables(points, pitch_row, pitch_col, radius, range_scale)
+    height, width = tables["ranges"].shape
+    fit = _empty_fit(height * width)
+    bands(
+        _pixels, height, tables["table"], tables["points"], tables["ranges"], tables["reach_grid"],
+        tables["pitch_row"], tables["pitch_col"], tables["col_walls"], tables["row_walls"], float(radius),
+        _NO_SLOPE, _NO_CHANGE,
+        *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
+        pieces=4,
+    )  # fmt: skip
+    fit["mean"] += tables["offset"]
+    return {**tables, **fit}
+
+
+def window_normals(
+    points: np.ndarray, pitch_row: np.ndarray, pitch_col: np.ndarray, radius: float, range_scale: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`window_pca` and `CompiledImage.finish` in one pass per pixel, for `pca`, which reads nothing else: unit
+    float32 normals (H·W, 3) and curvature (H·W), NaN where there is no valid window or no point, and the (H, W)
+    ranges. The same windows and arithmetic, so the same answers, without the eight per-pixel arrays of the fit that
+    hybrid's survey reads (about 50 MB on a 640x480 frame)."""
+    tables = _tables(points, pitch_row, pitch_col, radius, range_scale)
+    height, width = tables["ranges"].shape
+    normals = np.empty((height * width, 3), dtype=np.float32)
+    curvature = np.empty(height * width, dtype=np.float32)
+    bands(
+        _normals, height, tables["table"], tables["ranges"], tables["reach_grid"], tables["pitch_row"],
+        tables["pitch_col"], tables["col_walls"], tables["row_walls"], normals, curvature, pieces=4,
+    )  # fmt: skip
+    return normals, curvature, tables["ranges"]
+
+
+def _tables(
+    points: np.ndarray, pitch_row: np.ndarray, pitch_col: np.ndarray, radius: float, range_scale: float
+) -> dict[str, np.ndarray]:
+    """What every window of the image reads: the points (float64, contiguous), their ranges, the moment table about
+    `offset` (the cloud's mean, which keeps the sums' roundoff small), each pixel's reach, the pitch, and the
+    summed-area tables of the walls between pixels whose ranges jump."""
     points = np.ascontiguousarray(points, dtype=np.float64)
     height, width = points.shape[:2]
     ranges, sums = np.empty((height, width)), np.zeros((height, 4))
@@ -142,23 +190,13 @@ def window_pca(
     reach = np.full((height, width), float(radius)) if range_scale == 0 else np.maximum(ranges * range_scale, radius)
     rows = np.ascontiguousarray(pitch_row, dtype=np.float64)
     cols = np.ascontiguousarray(pitch_col, dtype=np.float64)
-    along_row, along_col = np.empty((height, width)), np.empty((height, width))
-    bands(_thresholds, height, ranges, reach, rows, cols, along_row, along_col)
-    col_jumps, row_jumps = np.zeros((height, max(width - 1, 0), 1)), np.zeros((max(height - 1, 0), width, 1))
-    bands(_row_jumps, height, ranges, along_row, col_jumps)
-    bands(_row_jumps, width, ranges.T, along_col.T, row_jumps.transpose(1, 0, 2))  # down the columns
-    col_walls, row_walls = _summed_area(col_jumps)[..., 0], _summed_area(row_jumps)[..., 0]
-    n = height * width
-    fit = _empty_fit(n)
-    bands(
-        _pixels, height, table, points, ranges, reach, rows, cols, col_walls, row_walls, float(radius),
-        _NO_SLOPE, _NO_CHANGE,
-        *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
-        pieces=4,
-    )  # fmt: skip
-    fit["mean"] += offset
-    sizing = {"ranges": ranges, "reach_grid": reach, "col_walls": col_walls, "row_walls": row_walls}
-    return {"table": table, "offset": offset, **fit, **sizing}
+    col_walls = np.empty((height + 1, max(width - 1, 0) + 1))
+    row_walls = np.empty((max(height - 1, 0) + 1, width + 1))
+    bands(_walls, 2, ranges, reach, rows, cols, col_walls, row_walls)
+    return {
+        "points": points, "ranges": ranges, "table": table, "offset": offset, "reach_grid": reach,
+        "pitch_row": rows, "pitch_col": cols, "col_walls": col_walls, "row_walls": row_walls,
+    }  # fmt: skip
 
 
 def window_pca_on_slope(
@@ -213,14 +251,40 @@ def _keep_first(
 @njit(cache=True, nogil=True, error_model="numpy")
 def _finish(normal, eigvals, valid, finite, normals, curvature, lo, hi):
     for i in range(lo, hi):
-        if not (valid[i] and finite[i]):
-            normals[i, 0] = normals[i, 1] = normals[i, 2] = curvature[i] = np.nan
-            continue
-        x, y, z = normal[i, 0], normal[i, 1], normal[i, 2]
-        length = max(math.sqrt(x * x + y * y + z * z), 1e-12)
-        normals[i, 0], normals[i, 1], normals[i, 2] = x / length, y / length, z / length
-        total = eigvals[i, 0] + eigvals[i, 1] + eigvals[i, 2]
-        curvature[i] = eigvals[i, 0] / max(total, _TINY) if total > 0 else 0.0
+        _finish_one(normal[i], eigvals[i], valid[i] and finite[i], normals, curvature, i)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _finish_one(normal, eigvals, answered, normals, curvature, i):
+    """Row i of the output: the unit normal and PCL's curvature λ0 / (λ0 + λ1 + λ2), NaN unless `answered`."""
+    if not answered:
+        normals[i, 0] = normals[i, 1] = normals[i, 2] = curvature[i] = np.nan
+        return
+    x, y, z = normal[0], normal[1], normal[2]
+    length = max(math.sqrt(x * x + y * y + z * z), 1e-12)
+    normals[i, 0], normals[i, 1], normals[i, 2] = x / length, y / length, z / length
+    total = eigvals[0] + eigvals[1] + eigvals[2]
+    curvature[i] = eigvals[0] / max(total, _TINY) if total > 0 else 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _normals(table, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, normals, curvature, lo, hi):
+    """Rows lo..hi of `window_normals`: each pixel's window, its PCA and validity, and the finished answer. A hole
+    answers NaN without a window, since `_finish` discards its fit."""
+    height, width = ranges.shape
+    eigvals, normal = np.empty(3), np.empty(3)
+    for r in range(lo, hi):
+        for c in range(width):
+            i = r * width + c
+            if np.isnan(ranges[r, c]):
+                _finish_one(normal, eigvals, False, normals, curvature, i)
+                continue
+            half_row, half_col = _halves(ranges, reach, pitch_row, pitch_col, r, c)
+            top, bottom, left, right = _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width)
+            k, _, _, _, c0, c1, c2, c3, c4, c5 = _box_moments(table, top, bottom, left, right)
+            smallest_eigenvector(c0, c1, c2, c3, c4, c5, eigvals, normal)
+            valid = _valid_fit(table, r, c, top, bottom, left, right, k, eigvals, normal)
+            _finish_one(normal, eigvals, valid, normals, curvature, i)
 
 
 def _empty_fit(n: int) -> dict[str, np.ndarray]:
@@ -230,16 +294,6 @@ def _empty_fit(n: int) -> dict[str, np.ndarray]:
         "valid": np.zeros(n, dtype=np.bool_), "mean": np.empty((n, 3)), "cov": np.empty((n, 6)),
         "box": np.empty((4, n), dtype=np.int64), "reach": np.empty(n),
     }  # fmt: skip
-
-
-def _summed_area(channels: np.ndarray) -> np.ndarray:
-    """(h, w, C) -> (h + 1, w + 1, C) inclusive prefix sums with a zero first row and column, summed down the columns
-    first and along the rows second, as `image._summed_area` sums them."""
-    h, w, k = channels.shape
-    table = np.zeros((h + 1, w + 1, k))
-    bands(_sum_down, w, channels, table)
-    bands(_sum_across, h, table)
-    return table
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -273,16 +327,6 @@ def _moments_down(points, ranges, offset, table, lo, hi):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _sum_down(channels, table, lo, hi):
-    for c in range(lo, hi):
-        for j in range(channels.shape[2]):
-            running = 0.0
-            for r in range(channels.shape[0]):
-                running += channels[r, c, j]
-                table[r + 1, c + 1, j] = running
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def _sum_across(table, lo, hi):
     for r in range(lo, hi):
         for j in range(table.shape[2]):
@@ -293,32 +337,74 @@ def _sum_across(table, lo, hi):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _thresholds(ranges, reach, pitch_row, pitch_col, along_row, along_col, lo, hi):
-    """The range step that makes a wall along a row (between columns) and along a column (between rows)."""
-    for r in range(lo, hi):
-        by_row = max(GRAZING_TAN * pitch_row[r], JUMP_RANGE_FRACTION)
-        for c in range(ranges.shape[1]):
-            floor = reach[r, c] * JUMP_RADIUS_FRACTION
-            by_col = max(GRAZING_TAN * pitch_col[c], JUMP_RANGE_FRACTION)
-            along_row[r, c] = _nan_max(ranges[r, c] * by_col, floor)
-            along_col[r, c] = _nan_max(ranges[r, c] * by_row, floor)
+def _walls(ranges, reach, pitch_row, pitch_col, col_walls, row_walls, lo, hi):
+    """Job 0: the summed-area table of the walls between columns (H + 1, W); job 1: of those between rows (H, W + 1).
+    One job a thread, each one pass over the ranges."""
+    for job in range(lo, hi):
+        if job == 0:
+            _col_walls(ranges, reach, pitch_col, col_walls)
+        else:
+            _row_walls(ranges, reach, pitch_row, row_walls)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _row_jumps(ranges, threshold, out, lo, hi):
-    """out[r, c] = 1 where the valid pixel at column c and the next valid pixel of its row (at c + 1 or beyond a run
-    of holes) differ in range by more than either one's threshold (`image._jumps`). Given the transposed views, the
-    same walk runs down the columns."""
-    width = ranges.shape[1]
-    for r in range(lo, hi):
+def _threshold(ranges, reach, pitch, r, c):
+    """The range step from pixel (r, c) to its next valid pixel along an axis of this `pitch` that makes a wall
+    (`image._jump_thresholds`): the larger of the step a surface at grazing incidence makes and the ball's reach."""
+    by_pitch = max(GRAZING_TAN * pitch, JUMP_RANGE_FRACTION)
+    return _nan_max(ranges[r, c] * by_pitch, reach[r, c] * JUMP_RADIUS_FRACTION)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _col_walls(ranges, reach, pitch_col, walls):
+    """walls[r + 1, c + 1]: the walls after columns 0..c in rows 0..r. A wall lies after column c where its valid
+    pixel and the next valid pixel of the row (at c + 1 or beyond a run of holes) differ in range by more than either
+    one's threshold (`image._jumps`)."""
+    height, width = ranges.shape
+    flags = np.zeros(max(width - 1, 0), dtype=np.uint8)
+    walls[0, :] = 0.0
+    for r in range(height):
+        flags[:] = 0
         following = -1
         for c in range(width - 1, -1, -1):
             if np.isfinite(ranges[r, c]):
-                if following >= 0 and abs(ranges[r, c] - ranges[r, following]) > max(
-                    threshold[r, c], threshold[r, following]
-                ):
-                    out[r, c, 0] = 1.0
+                if following >= 0:
+                    limit = max(
+                        _threshold(ranges, reach, pitch_col[c], r, c),
+                        _threshold(ranges, reach, pitch_col[following], r, following),
+                    )
+                    flags[c] = abs(ranges[r, c] - ranges[r, following]) > limit
                 following = c
+        walls[r + 1, 0] = running = 0.0
+        for c in range(width - 1):
+            running += flags[c]
+            walls[r + 1, c + 1] = walls[r, c + 1] + running
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _row_walls(ranges, reach, pitch_row, walls):
+    """walls[r + 1, c + 1]: the walls after rows 0..r in columns 0..c (`_col_walls` down the columns), found walking
+    up the rows in memory order with each column's next valid pixel below."""
+    height, width = ranges.shape
+    flags = np.zeros((max(height - 1, 0), width), dtype=np.uint8)
+    following = np.full(width, -1, dtype=np.int64)
+    for r in range(height - 1, -1, -1):
+        for c in range(width):
+            if np.isfinite(ranges[r, c]):
+                below = following[c]
+                if below >= 0:
+                    limit = max(
+                        _threshold(ranges, reach, pitch_row[r], r, c),
+                        _threshold(ranges, reach, pitch_row[below], below, c),
+                    )
+                    flags[r, c] = abs(ranges[r, c] - ranges[below, c]) > limit
+                following[c] = r
+    walls[0, :] = 0.0
+    for r in range(height - 1):
+        walls[r + 1, 0] = running = 0.0
+        for c in range(width):
+            running += flags[r, c]
+            walls[r + 1, c + 1] = walls[r, c + 1] + running
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -418,7 +504,7 @@ def _pixels(
     `slope` (H·W, 3) rather than an empty one, each axis' half-width is first divided by the stretch of that plane along
     it (`MomentImage.pca_on_slope`), and only the pixels whose window that changes are fitted and marked in `changed`:
     the others' windows, and so their fits, are the first pass's."""
-    width = ranges.shape[1]
+    height, width = ranges.shape
     for r in range(lo, hi):
         for c in range(width):
             i = r * width + c
@@ -434,9 +520,13 @@ def _pixels(
                 changed[i] = True
                 half_row, half_col = rows, cols
             flat_reach[i] = radius if np.isnan(reach[r, c]) else reach[r, c]
-            _fit_pixel(
-                table, col_walls, row_walls, r, c, half_row, half_col, normal, eigvals, count, valid, mean, cov, box
-            )
+            top, bottom, left, right = _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width)
+            box[0, i], box[1, i], box[2, i], box[3, i] = top, bottom, left, right
+            k, mx, my, mz, c0, c1, c2, c3, c4, c5 = _box_moments(table, top, bottom, left, right)
+            count[i], mean[i, 0], mean[i, 1], mean[i, 2] = k, mx, my, mz
+            cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5] = c0, c1, c2, c3, c4, c5
+            smallest_eigenvector(c0, c1, c2, c3, c4, c5, eigvals[i], normal[i])
+            valid[i] = _valid_fit(table, r, c, top, bottom, left, right, k, eigvals[i], normal[i])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -494,34 +584,35 @@ def _stretch(points, ranges, r, c, dr, dc, nx, ny, nz):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _fit_pixel(table, col_walls, row_walls, r, c, half_row, half_col, normal, eigvals, count, valid, mean, cov, box):
-    """One pixel's window at these half-widths, its moments, PCA and validity, into row r·W + c of the outputs."""
-    height, width = table.shape[0] - 1, table.shape[1] - 1
-    i = r * width + c
-    top, bottom, left, right = _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width)
-    box[0, i], box[1, i], box[2, i], box[3, i] = top, bottom, left, right
+def _box_moments(table, top, bottom, left, right):
+    """The box's count, mean and covariance (upper triangle: xx, xy, xz, yy, yz, zz) about the table's offset, as
+    scalars, which the callers keep in registers or store where they need them."""
     k = _box(table, top, bottom, left, right, 0)
-    count[i] = k
     scale = 1.0 / max(k, 1.0)
     mx = _box(table, top, bottom, left, right, 1) * scale
     my = _box(table, top, bottom, left, right, 2) * scale
     mz = _box(table, top, bottom, left, right, 3) * scale
-    mean[i, 0], mean[i, 1], mean[i, 2] = mx, my, mz
-    cov[i, 0] = _box(table, top, bottom, left, right, 4) * scale - mx * mx
-    cov[i, 1] = _box(table, top, bottom, left, right, 5) * scale - mx * my
-    cov[i, 2] = _box(table, top, bottom, left, right, 6) * scale - mx * mz
-    cov[i, 3] = _box(table, top, bottom, left, right, 7) * scale - my * my
-    cov[i, 4] = _box(table, top, bottom, left, right, 8) * scale - my * mz
-    cov[i, 5] = _box(table, top, bottom, left, right, 9) * scale - mz * mz
-    smallest_eigenvector(cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5], eigvals[i], normal[i])
-    on_row = _box(table, r, r, left, right, 0)
-    on_col = _box(table, top, bottom, c, c, 0)
-    valid[i] = (
+    return (
+        k, mx, my, mz,
+        _box(table, top, bottom, left, right, 4) * scale - mx * mx,
+        _box(table, top, bottom, left, right, 5) * scale - mx * my,
+        _box(table, top, bottom, left, right, 6) * scale - mx * mz,
+        _box(table, top, bottom, left, right, 7) * scale - my * my,
+        _box(table, top, bottom, left, right, 8) * scale - my * mz,
+        _box(table, top, bottom, left, right, 9) * scale - mz * mz,
+    )  # fmt: skip
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _valid_fit(table, r, c, top, bottom, left, right, k, eigvals, normal):
+    """Whether pixel (r, c)'s window fit is valid (`image._window_pca`): enough points, not all on the pixel's row or
+    column, a normal, and not collinear."""
+    return (
         k >= MIN_NEIGHBOURS
-        and np.isfinite(normal[i, 0])
-        and on_row < k
-        and on_col < k
-        and eigvals[i, 1] > COLLINEAR_RATIO * eigvals[i, 2]
+        and np.isfinite(normal[0])
+        and _box(table, r, r, left, right, 0) < k
+        and _box(table, top, bottom, c, c, 0) < k
+        and eigvals[1] > COLLINEAR_RATIO * eigvals[2]
     )
 
 

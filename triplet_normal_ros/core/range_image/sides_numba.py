@@ -8,11 +8,9 @@ import numpy as np
 from numba import njit
 
 from ..bands import bands
-from ..config.conventions import MIN_NEIGHBOURS
 from ..pca.eigen_numba import smallest_eigenvector
-from ..pca.frames import COLLINEAR_RATIO
 from . import image_numba
-from .image_numba import _SIDES, _box, _halves, _largest_clear
+from .image_numba import _SIDES, _box_moments, _halves, _largest_clear, _valid_fit
 from .survey import PART_SPAN
 from .survey_numba import ray_noise_normal
 
@@ -61,23 +59,10 @@ def _snap(
             )  # fmt: skip
             if bottom - top < part_span - 1 or right - left < part_span - 1:
                 continue
-            k = _box(table, top, bottom, left, right, 0)
-            if not (k >= MIN_NEIGHBOURS and _box(table, r, r, left, right, 0) < k):
-                continue
-            if not _box(table, top, bottom, c, c, 0) < k:
-                continue
-            scale = 1.0 / max(k, 1.0)
-            mx = _box(table, top, bottom, left, right, 1) * scale
-            my = _box(table, top, bottom, left, right, 2) * scale
-            mz = _box(table, top, bottom, left, right, 3) * scale
-            cov[0] = _box(table, top, bottom, left, right, 4) * scale - mx * mx
-            cov[1] = _box(table, top, bottom, left, right, 5) * scale - mx * my
-            cov[2] = _box(table, top, bottom, left, right, 6) * scale - mx * mz
-            cov[3] = _box(table, top, bottom, left, right, 7) * scale - my * my
-            cov[4] = _box(table, top, bottom, left, right, 8) * scale - my * mz
-            cov[5] = _box(table, top, bottom, left, right, 9) * scale - mz * mz
-            smallest_eigenvector(cov[0], cov[1], cov[2], cov[3], cov[4], cov[5], eigvals, axis)
-            if not (np.isfinite(axis[0]) and eigvals[1] > COLLINEAR_RATIO * eigvals[2]):
+            k, mx, my, mz, c0, c1, c2, c3, c4, c5 = _box_moments(table, top, bottom, left, right)
+            cov[0], cov[1], cov[2], cov[3], cov[4], cov[5] = c0, c1, c2, c3, c4, c5
+            smallest_eigenvector(c0, c1, c2, c3, c4, c5, eigvals, axis)
+            if not _valid_fit(table, r, c, top, bottom, left, right, k, eigvals, axis):
                 continue
             nx, ny, nz = ray_noise_normal(
                 cov, mx + offset[0], my + offset[1], mz + offset[2], eigvals[2], axis[0], axis[1], axis[2]
