@@ -428,12 +428,32 @@ def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, insta
         assert out is not None
         assert np.isfinite(normals_of(out)).all(axis=1).sum() > 300
     assert node.log.count("first cloud received:") == 1  # announced once, however often it was resent
+    served = re.findall(
+        r"first answer to (?:a range image|a cloud that is not a range image): hybrid: .*checkpoint (\S+)", node.log
+    )
+    assert len(served) == 1 and served[0] in shipped, node.log[-3000:]  # which checkpoint served, said once per path
     segments = shm_segments(node.proc.pid)
     code, _ = node.stop(signal.SIGTERM, timeout=EXIT_GUARD_S)  # a hang guard, not a speed requirement
     assert code == 0, node.log[-2000:]  # not the watchdog's exit 2: shut down within the node's join timeout
     assert "shut down" in node.log and "still busy" not in node.log
     assert "Traceback" not in node.log
     assert segments and not left_behind(segments), segments
+
+
+def test_the_readme_replay_check_gets_a_full_frame_answered(start_node, ros_env: dict[str, str]) -> None:
+    """README's check without ROS's command line: `python -m triplet_normal_ros.ros.tools.replay` sends a full
+    640x480 frame, best effort as a driver does, to the node started with its defaults, and reports its normals."""
+    node = start_node({"stats_period": 30.0}, {"input": "/tn_replay/points", "output": "/tn_replay/normals"})
+    assert node.wait_for_log("ready:", STARTUP_S), node.log
+    command = [sys.executable, "-m", "triplet_normal_ros.ros.tools.replay", "--input", "/tn_replay/points"]
+    done = subprocess.run(
+        [*command, "--output", "/tn_replay/normals"], capture_output=True, text=True, timeout=300, env=ros_env
+    )
+    assert done.returncode == 0, done.stdout + done.stderr[-2000:] + node.log[-2000:]
+    assert "fields: x, y, z, rgb, normal_x, normal_y, normal_z, curvature" in done.stdout, done.stdout
+    answered, valid = (int(n.replace(",", "")) for n in re.search(r"([\d,]+) of ([\d,]+) valid", done.stdout).groups())
+    assert answered >= 0.95 * valid, done.stdout
+    assert re.search(r"first answer to a range image: hybrid: .*checkpoint \S+", node.log), node.log[-3000:]
 
 
 @pytest.mark.parametrize(

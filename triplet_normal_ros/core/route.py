@@ -31,7 +31,7 @@ def plan_cloud(
     other_network = hopeful.checkpoint != checkpoint_for(settings, device.type)
     check = inspect_grid(cloud, shape, pitch=hopeful.uses_range_image or other_network)
     if check.reason:
-        note = f"the {shape[0]}x{shape[1]} organized cloud is not a range image: {check.reason}; pools instead"
+        note = f"the {shape[1]}x{shape[0]} organized cloud is not a range image: {check.reason}; pools instead"
         plan = make_plan(settings, device.type, organized, range_image=False)
         return replace(plan, scan_lines=check.scan_lines, note=note), None
     return hopeful, check.pitch if hopeful.uses_range_image else None

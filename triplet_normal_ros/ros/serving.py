@@ -124,7 +124,7 @@ class ServingMixin:
         self._mailbox: Mailbox[PointCloud2] = Mailbox()
         self._stats = ProcessingStats()
         self._cancel = threading.Event()
-        self._grid_noted = False  # a grid that is not a range image is reported once (`Plan.note`)
+        self._paths_noted: set[str] = set()  # each path a cloud took, said once (`_note_plan`)
         self._publisher: Publisher | None = None
         self._subscription = None
         self._input_topic = ""
@@ -345,11 +345,19 @@ class ServingMixin:
         self._note_plan(estimator)
 
     def _note_plan(self, estimator: NormalEstimator) -> None:
-        """Say once when a cloud's grid was not trusted (not a range image), so its pool path's cost is explained."""
+        """Say once per path which path and checkpoint answered a cloud, so that a user who names no checkpoint
+        learns which one served (a CPU's default differs between range images and other clouds), and say why a
+        grid was not trusted (not a range image), which explains its pool path's cost."""
         plan = estimator.last_run.plan
-        if plan is not None and plan.note and not self._grid_noted:
-            self._grid_noted = True
-            self.get_logger().warning(plan.note)
+        if plan is None or plan.steps in self._paths_noted:
+            return
+        self._paths_noted.add(plan.steps)
+        kind = "a range image" if plan.uses_range_image else "a cloud that is not a range image"
+        line = f"first answer to {kind}: {plan.describe()}"
+        if plan.note:
+            self.get_logger().warning(f"{line}; {plan.note}")
+        else:
+            self.get_logger().info(line)
 
     def _report_stats(self) -> None:
         """Close the statistics window: log its line and publish its health on /diagnostics, with the RViz outputs'

@@ -173,3 +173,39 @@ class ReplayClient:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Send one shipped frame to a running node, as a camera driver would, and say what came back: the check that a
+    user without ROS's command line (no `ros2 topic echo`) can run against the node they started."""
+    import argparse
+
+    from ...io.pointcloud2 import NORMAL_FIELDS, read_field
+
+    parser = argparse.ArgumentParser(description=main.__doc__.splitlines()[0])
+    parser.add_argument("--input", default="/points", help="the node's input topic (default /points)")
+    parser.add_argument("--output", default="/normals", help="the node's output topic (default /normals)")
+    parser.add_argument("--frame", choices=FRAMES, default=FRAMES[0], help="the shipped 640x480 frame to send")
+    parser.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for the node and its answer")
+    args = parser.parse_args(argv)
+    frame = load_frame(args.frame)
+    with ReplayClient(args.input, args.output, input_qos=SENSOR_INPUT) as client:
+        if not client.wait_for_node(args.timeout):
+            print(f"replay: no node subscribes to {args.input} and publishes {args.output}", flush=True)
+            return 1
+        start = time.perf_counter()
+        answer = client.request_resending(frame.to_cloud(client.header()), timeout=args.timeout, every=30.0)
+        if answer is None:
+            print(f"replay: no answer on {args.output} within {args.timeout:g} s", flush=True)
+            return 1
+    normals = np.stack([read_field(answer, name) for name in NORMAL_FIELDS[:3]], axis=1)
+    answered = int(np.isfinite(normals).all(axis=1).sum())
+    valid = int(np.isfinite(frame.xyz).all(axis=-1).sum())
+    print(f"{args.frame} ({answer.width}x{answer.height}) answered in {time.perf_counter() - start:.1f} s")
+    print(f"fields: {', '.join(f.name for f in answer.fields)}")
+    print(f"{answered:,} of {valid:,} valid points have a normal; the node's log names the checkpoint that served")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
