@@ -436,6 +436,50 @@ def test_results_holds_todays_tables_within_its_length() -> None:
     assert lines <= RESULTS_MAX_LINES, f"docs/RESULTS.md has {lines} lines: move studies to docs/HISTORY.md"
 
 
+def block_writer(body: str) -> Path | None:
+    """The source that writes a block, from its `Command:` line: a docs tool, or the `triplet-normal` subcommand's."""
+    command = re.search(r"Command: `([^`]*)`", body)
+    if command is None:
+        return None
+    tool = re.search(r"docs/tools/\w+\.py", command.group(1))
+    if tool:
+        return REPO / tool.group(0)
+    sub = re.search(r"triplet-normal (\w+)", command.group(1))
+    modules = {name: module for name, module, _ in COMMANDS}
+    if sub is None or sub.group(1) not in modules:
+        return None
+    return Path(inspect.getsourcefile(modules[sub.group(1)]))
+
+
+def writes_block(source: str, name: str) -> bool:
+    """Whether `source` names block `name` as a literal, or as the f-string family it belongs to (`eval-{kind}`)."""
+    family = name.split("-")[0]
+    return f'"{name}"' in source or f"'{name}'" in source or f'f"{family}-{{' in source
+
+
+def run_module_sources(path: Path) -> str:
+    """A subcommand's module and the evaluation modules it hands the writing to."""
+    return path.read_text() + "".join(p.read_text() for p in sorted((PACKAGE_DIR / "evaluation").glob("*.py")))
+
+
+def test_every_results_table_is_in_a_block_its_command_writes() -> None:
+    """A table outside the BEGIN/END blocks is written by hand; a block whose command does not write it is stale."""
+    text = RESULTS.read_text()
+    outside = re.sub(r"<!-- BEGIN (\S+) -->\n.*?<!-- END \1 -->", "", text, flags=re.DOTALL)
+    assert [line for line in outside.splitlines() if line.startswith("| ---")] == [], "a table outside the blocks"
+    for name, body in re.findall(r"<!-- BEGIN (\S+) -->\n(.*?)<!-- END \1 -->", text, re.DOTALL):
+        writer = block_writer(body)
+        assert writer is not None and writer.exists(), f"block {name} names no command of this repository"
+        source = writer.read_text() if "docs/tools" in str(writer) else run_module_sources(writer)
+        assert writes_block(source, name), f"block {name}: {writer.name} does not write it"
+
+
+def test_training_block_is_what_the_shipped_checkpoints_record() -> None:
+    from triplet_normal_ros.evaluation.training_card import markdown
+
+    assert read_section(RESULTS, "training") == markdown().strip(), "rerun docs/tools/training_table.py --out"
+
+
 def test_readme_accuracy_figures_are_the_eval_blocks() -> None:
     """Every MSAE README's accuracy section quotes is in an `eval-*` block, not only in prose that quotes one."""
     readme = _read("README.md")

@@ -1,6 +1,7 @@
 """What `triplet-normal bag` costs beyond the estimator, per full 640x480 frame.
 
-Run from the repository root: .venv/bin/python docs/tools/bag_overhead.py [--frames N] [--storage mcap|sqlite3]
+Run from the repository root: .venv/bin/python docs/tools/bag_overhead.py [--frames N] [--storage mcap sqlite3]
+[--out docs/RESULTS.md]
 
 Writes a bag of N frames shaped like the shipped Kinect frames (x y z rgb FLOAT32 as PCL publishes them, 16 bytes a
 point, 480 x 640, a std_msgs/String between frames) whose xyz are all NaN, so the command skips the estimator, as
@@ -13,6 +14,7 @@ own time on a frame.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
@@ -23,6 +25,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 
 import triplet_normal_ros.core.estimator  # noqa: F401  (torch is imported before the clock starts)
 from triplet_normal_ros.cli.main import main
+from triplet_normal_ros.evaluation.report import tool_block, tool_command, tool_header, update_section
 from triplet_normal_ros.io.bags import TYPESTORE
 
 SAMPLES = Path(__file__).resolve().parents[2] / "triplet_normal_ros" / "sample_data"
@@ -65,13 +68,10 @@ def write_input(path: Path, storage: str, frames: int) -> None:
             writer.write(chatter, 10**8 * (i + 1) + 1, text)
 
 
-def main_tool() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=20)
-    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
-    args = parser.parse_args()
+def one_storage(storage: str, frames: int) -> str:
+    """Write the input bag in `storage`, run `bag` on it, and return the table's row."""
     with tempfile.TemporaryDirectory() as tmp:
-        write_input(Path(tmp) / "in", args.storage, args.frames)
+        write_input(Path(tmp) / "in", storage, frames)
         size_in = sum(p.stat().st_size for p in Path(tmp, "in").iterdir()) / 1e6
         start = time.perf_counter()
         status = main(["bag", f"{tmp}/in", f"{tmp}/out", "--topic", TOPIC, "--method", "pca", "--device", "cpu"])
@@ -79,10 +79,38 @@ def main_tool() -> None:
         size_out = sum(p.stat().st_size for p in Path(tmp, "out").iterdir()) / 1e6
     if status:
         sys.exit(status)
-    print("| storage | frames | IN (MB) | OUT (MB) | bag command (s) | per frame (ms) |")
-    print("| --- | --- | --- | --- | --- | --- |")
-    per_frame = seconds / args.frames * 1e3
-    print(f"| {args.storage} | {args.frames} | {size_in:.0f} | {size_out:.0f} | {seconds:.2f} | {per_frame:.0f} |")
+    per_frame = seconds / frames * 1e3
+    return f"| {storage} | {frames} | {size_in:.0f} | {size_out:.0f} | {seconds:.2f} | {per_frame:.0f} |"
+
+
+def markdown(command: str, load: float, frames: int, rows: list[str]) -> str:
+    """The `bag-overhead` block: the command, date and load, what was run, and the table."""
+    about = (
+        f"What `triplet-normal bag` adds to the estimator's time: {frames} frames of the shipped Kinect frames' size "
+        "(640x480 x 16 bytes) whose xyz are NaN, so that the estimator is skipped; copy-through on, so OUT holds the "
+        "input clouds and the clouds with normals."
+    )
+    columns = (
+        "| storage | frames | IN (MB) | OUT (MB) | bag command (s) | per frame (ms) |\n"
+        "| --- | --- | --- | --- | --- | --- |"
+    )
+    return tool_block(tool_header(command, load), about, columns, rows)
+
+
+def main_tool() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=20)
+    parser.add_argument("--storage", nargs="+", choices=("mcap", "sqlite3"), default=["mcap", "sqlite3"])
+    parser.add_argument("--out", type=Path, help="results file to write the `bag-overhead` block into")
+    args = parser.parse_args()
+    load = os.getloadavg()[0]
+    rows = []
+    for storage in args.storage:
+        rows.append(one_storage(storage, args.frames))
+        print(rows[-1], flush=True)
+    if args.out:
+        text = markdown(tool_command("docs/tools/bag_overhead.py"), load, args.frames, rows)
+        print(f"wrote {update_section(args.out, 'bag-overhead', text)}")
 
 
 if __name__ == "__main__":

@@ -20,14 +20,13 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import shlex
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from triplet_normal_ros.evaluation.report import update_section
+from triplet_normal_ros.evaluation.report import tool_command, tool_header, update_section
 from triplet_normal_ros.ros.tools.node_process import node_env, params_file, start_node, stop_node
 from triplet_normal_ros.ros.tools.replay import SENSOR_INPUT, ReplayClient, load_frame
 
@@ -94,7 +93,7 @@ class Client(ReplayClient):
 
 def markdown(command: str, load: float, build_s: float, every: float, rows: list[str]) -> str:
     return (
-        f"Command: `{command}` · {time.strftime('%Y-%m-%d')} · load average at start {load:.1f} (2 cores)\n\n"
+        f"{tool_header(command, load)}\n\n"
         f"A fresh `colcon build` of the checkout took {build_s:.1f} s, the kernels' compilation included. Each time "
         "runs from starting the installed node's process, with its default parameters and an empty home and ROS "
         "home, to the first answer to a full 640x480 Kinect frame (`table_scene_mug`) that a driver already running "
@@ -125,7 +124,7 @@ def main() -> None:
                 rows.append(one_start(case, prefix, folder, client, args.every, cache))
                 print(rows[-1], flush=True)
     if args.out:
-        command = shlex.join([".venv/bin/python", "docs/tools/first_frame.py", *sys.argv[1:]])
+        command = tool_command("docs/tools/first_frame.py")
         print(f"wrote {update_section(args.out, 'first-start', markdown(command, load, build_s, args.every, rows))}")
 
 

@@ -15,7 +15,7 @@ Subcommands (the shell script runs them in this order; each takes --device, cpu 
   node      the installed node on the device: full real frames, publish to answer, its normals checked
   record    one row from the shell (colcon build, bench)
   bench-row the row of a `triplet-normal bench --out FILE` run
-  table     the markdown table; exit 1 when a row is not ok
+  table     the markdown table (--out FILE: also FILE's `gpu-check` block); exit 1 when a row is not ok
 """
 
 from __future__ import annotations
@@ -29,6 +29,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from triplet_normal_ros.evaluation.report import tool_command, update_section
 
 RADIUS = 0.05  # m, the node's default and bench's depth-frame radius
 #: Same neighbourhood on both devices: at least this share of query points agrees within 1°, at most this share of
@@ -268,15 +270,24 @@ def cmd_bench_row(args: argparse.Namespace) -> int:
 
 def cmd_table(args: argparse.Namespace) -> int:
     rows = [json.loads(line) for line in args.results.read_text().splitlines() if line.strip()]
-    print("| what | device | seconds | result | ok |")
-    print("| --- | --- | ---: | --- | --- |")
+    text = table_markdown(rows)
+    print(text)
+    if args.out:
+        block = f"Command: `{tool_command('docs/tools/gpu_check.py')}`\n\n{text}"
+        print(f"wrote {update_section(args.out, 'gpu-check', block)}")
+    return 1 if any(not r["ok"] for r in rows) or not rows else 0
+
+
+def table_markdown(rows: list[dict]) -> str:
+    """The one table of a run's rows, then how many passed: what the `gpu-check` block of a results file holds."""
+    lines = ["| what | device | seconds | result | ok |", "| --- | --- | ---: | --- | --- |"]
     for r in rows:
         seconds = "-" if r["seconds"] is None else f"{r['seconds']:.3g}"
         result = str(r["result"]).replace("|", "/").replace("\n", " ")
-        print(f"| {r['what']} | {r['device']} | {seconds} | {result} | {'ok' if r['ok'] else '**FAILED**'} |")
+        lines.append(f"| {r['what']} | {r['device']} | {seconds} | {result} | {'ok' if r['ok'] else '**FAILED**'} |")
     failed = sum(not r["ok"] for r in rows)
-    print(f"\ngpu_check: {len(rows) - failed} of {len(rows)} ok" + (f", {failed} FAILED" if failed else ""))
-    return 1 if failed or not rows else 0
+    lines.append(f"\ngpu_check: {len(rows) - failed} of {len(rows)} ok" + (f", {failed} FAILED" if failed else ""))
+    return "\n".join(lines)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -314,6 +325,7 @@ def main() -> int:
     rec.add_argument("--seconds", type=float)
     rec.add_argument("--result", required=True)
     rec.add_argument("--ok", choices=("yes", "no"), required=True)
+    commands["table"][0].add_argument("--out", type=Path, help="results file to write the `gpu-check` block into")
     bench = commands["bench-row"][0]
     bench.add_argument("--markdown", type=Path, required=True)
     bench.add_argument("--rc", type=int, required=True)

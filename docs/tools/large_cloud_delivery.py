@@ -1,6 +1,7 @@
 """Which PointCloud2 sizes reach a best-effort (sensor data) subscription in another process, per Fast DDS setup.
 
 Run from the repository root: .venv/bin/python docs/tools/large_cloud_delivery.py [--sizes MB ...] [--count N]
+[--out docs/RESULTS.md]
 
 Each case starts two fresh processes of this script: a "node" that subscribes with ``qos_profile_sensor_data`` (the
 node's default) and a "driver" that publishes ``--count`` clouds of each size one at a time, ``--gap`` s apart, with a
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib.metadata
 import os
 import random
 import signal
@@ -22,6 +24,8 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from triplet_normal_ros.evaluation.report import tool_command, update_section
 
 REPO = Path(__file__).resolve().parents[2]
 PROFILE = REPO / "config" / "fastdds_large_data.xml"
@@ -150,7 +154,9 @@ def main() -> None:
     parser.add_argument("--count", type=int, default=10, help="clouds per size")
     parser.add_argument("--gap", type=float, default=0.5, help="seconds between clouds")
     parser.add_argument("--range", default="LOCALHOST", help="ROS_AUTOMATIC_DISCOVERY_RANGE for both processes")
-    parser.add_argument("--cases", nargs="+", choices=list(PAIRS), default=["default", "node-profile", "both-profile"])
+    cases = ["default", "node-profile", "both-profile", "both-LARGE_DATA"]
+    parser.add_argument("--cases", nargs="+", choices=list(PAIRS), default=cases)
+    parser.add_argument("--out", type=Path, help="results file to write the `large-clouds` block into")
     args = parser.parse_args()
     if args.role == "node":
         return role_node()
@@ -159,12 +165,45 @@ def main() -> None:
     base = dict(os.environ)
     base["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))
     base["ROS_AUTOMATIC_DISCOVERY_RANGE"] = args.range
-    print(f"| publisher | node | driver | {' | '.join(f'{s:g} MB' for s in args.sizes)} |")
-    print(f"| --- | --- | --- | {' | '.join('---' for _ in args.sizes)} |")
+    load = os.getloadavg()[0]
+    rows = [
+        f"| publisher | node | driver | {' | '.join(f'{s:g} MB' for s in args.sizes)} |",
+        f"| --- | --- | --- | {' | '.join('---' for _ in args.sizes)} |",
+    ]
+    print("\n".join(rows))
     for name in args.cases:
         for case in (Case(r, *PAIRS[name]) for r in ("best_effort", "reliable")):
             got = run_case(case, args.sizes, args.count, args.gap, base)
-            print(f"| {case.label()} | {' | '.join(f'{got[s]}/{args.count}' for s in args.sizes)} |", flush=True)
+            rows.append(f"| {case.label()} | {' | '.join(f'{got[s]}/{args.count}' for s in args.sizes)} |")
+            print(rows[-1], flush=True)
+    if args.out:
+        text = markdown(tool_command("docs/tools/large_cloud_delivery.py"), load, args, rows)
+        print(f"wrote {update_section(args.out, 'large-clouds', text)}")
+
+
+def markdown(command: str, load: float, args: argparse.Namespace, rows: list[str]) -> str:
+    """The `large-clouds` block: the command, date, Fast DDS version and load, what a row is, and the table."""
+    return (
+        f"Command: `{command}` · {time.strftime('%Y-%m-%d')} · rmw_fastrtps_cpp {version('ros-rmw-fastrtps-cpp')} "
+        f"(Fast DDS {version('ros-fastdds')}) · load average at start {load:.1f} (2 cores) · "
+        f"`ROS_AUTOMATIC_DISCOVERY_RANGE={args.range}`\n\n"
+        "Two fresh processes per row, on one host and a random domain id: a *node* subscribing with "
+        "`qos_profile_sensor_data` (best effort, keep last 5: the node's default) and a *driver* publishing "
+        f"{args.count} bare PointCloud2 messages of each size, {args.gap:g} s apart, with a best-effort or a reliable "
+        "writer. Each side gets its own Fast DDS setup: `default` (nothing set), `profile` "
+        "(`FASTDDS_DEFAULT_PROFILES_FILE=config/fastdds_large_data.xml`), `LARGE_DATA` and `SHM` "
+        "(`FASTDDS_BUILTIN_TRANSPORTS`). Delivered = messages the subscriber received; MB = 10^6 bytes.\n\n"
+        + "\n".join(rows)
+        + "\n"
+    )
+
+
+def version(distribution: str) -> str:
+    """An installed distribution's version, or `?` where pip did not install it (a system ROS)."""
+    try:
+        return importlib.metadata.version(distribution)
+    except importlib.metadata.PackageNotFoundError:
+        return "?"
 
 
 if __name__ == "__main__":

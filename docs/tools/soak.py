@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import os
 import random
-import shlex
 import subprocess
 import sys
 import time
@@ -23,7 +22,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from triplet_normal_ros.evaluation.report import update_section
+from triplet_normal_ros.evaluation.report import tool_command, update_section
 from triplet_normal_ros.ros.tools.node_process import node_env, params_file, start_node, stop_node, wait_for_node
 from triplet_normal_ros.ros.tools.overload import (
     FLOOD_DEPTH,
@@ -123,7 +122,7 @@ def main() -> int:
     csv.write_text("seconds,rss_mb\n" + "".join(f"{t:.2f},{mb:.1f}\n" for t, mb in result.rss_samples))
     print(f"RSS samples: {csv}")
     if args.out:
-        command = shlex.join([".venv/bin/python", "docs/tools/soak.py", *sys.argv[1:]])
+        command = tool_command("docs/tools/soak.py")
         print(f"wrote {update_section(args.out, 'soak', markdown(result, command, load))}")
     return 0
 

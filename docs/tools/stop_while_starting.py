@@ -6,7 +6,8 @@ home directory, as the first start after a build is, sends SIGINT a given time a
 seconds from the signal to the exit, the exit code, and the Fast DDS segments in /dev/shm that the run left without
 an owner. The moments span the start: the imports, rclpy's start, the kernels' compilation and the throughput probe.
 
-Run: .venv/bin/python docs/tools/stop_while_starting.py --prefix out/ws/install/triplet_normal_ros   (after `make demo`)
+Run (after `make demo`):
+  .venv/bin/python docs/tools/stop_while_starting.py --prefix out/ws/install/triplet_normal_ros [--out docs/RESULTS.md]
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from triplet_normal_ros.evaluation.report import tool_block, tool_command, tool_header, update_section
 from triplet_normal_ros.ros.tools.node_process import node_env, params_file, start_node
 
 #: Seconds after the start at which SIGINT is sent.
@@ -73,19 +75,38 @@ def one_run(prefix: Path, moment: float, folder: Path) -> str:
     return f"| {moment:.0f} s | {took:.2f} s | {code} | {len(orphans(before))} | {last} |"
 
 
+def markdown(command: str, load: float, rows: list[str]) -> str:
+    """The `stop-while-starting` block: the command, date and load, what a run is, and the table."""
+    about = (
+        "Each run starts the installed `node` with its defaults and an empty kernel cache (NUMBA_CACHE_DIR) and home, "
+        "so it compiles its kernels for half a minute, and sends SIGINT the given time after; *segments left*: Fast "
+        "DDS segments in /dev/shm the run left without an owner; *last log line*: the node's, `(no output)` when "
+        "Python's default handler ended it before the stopper existed."
+    )
+    columns = (
+        "| SIGINT after | exit after | code | segments left | last log line |\n| ---: | ---: | ---: | ---: | --- |"
+    )
+    return tool_block(tool_header(command, load), about, columns, rows)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--prefix", type=Path, default=Path("out/ws/install/triplet_normal_ros"))
     parser.add_argument("--moments", type=float, nargs="+", default=MOMENTS, help="seconds after the start")
+    parser.add_argument("--out", type=Path, help="results file to write the `stop-while-starting` block into")
     args = parser.parse_args()
     # A shell starts a background job with SIGINT ignored, and the node would inherit that until it takes the signal
     # itself; with a handler here, each node starts with the default, as from a terminal.
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    print("| SIGINT after | exit after | code | segments left | last log line |")
-    print("| ---: | ---: | ---: | ---: | --- |")
+    load = os.getloadavg()[0]
+    rows = []
     for moment in args.moments:
         with tempfile.TemporaryDirectory(prefix="stop_while_starting_") as folder:
-            print(one_run(args.prefix.resolve(), moment, Path(folder)), flush=True)
+            rows.append(one_run(args.prefix.resolve(), moment, Path(folder)))
+            print(rows[-1], flush=True)
+    if args.out:
+        command = tool_command("docs/tools/stop_while_starting.py")
+        print(f"wrote {update_section(args.out, 'stop-while-starting', markdown(command, load, rows))}")
 
 
 if __name__ == "__main__":

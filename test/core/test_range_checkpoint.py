@@ -38,7 +38,8 @@ def test_range_metadata_records_the_range_recipe_and_conventions():
     assert meta["conventions"] == checkpoint_conventions()
     assert meta["k"] == RANGE_K
     expected = {"encoder": RANGE_ENCODER, "regressor": RANGE_REGRESSOR, "residual": True}
-    assert meta["architecture"] == {**expected, "scales": [], "inlier_seeds": []}
+    head = {"scales": RECIPES["range"].scales, "inlier_seeds": RECIPES["range"].inlier_seeds}
+    assert meta["architecture"] == {**expected, **head}
 
 
 def test_range_is_at_least_eight_times_cheaper_than_lite_per_patch():

@@ -5,11 +5,11 @@ import argparse
 from ..core.config.conventions import METHODS
 from . import args as checks
 
-DESCRIPTION = """Points/s per stage of pca (k = 30 and k = 512), learned and hybrid with the default checkpoint and,
-when it ships, lite, on a simulated 640x480 depth frame and a noisy torus (--points), side by side in one run, with
-the neighbour searches, plain matmul GFLOP/s and PointCloud2 conversion, and on a CPU each method's resident memory
-(idle, and over a whole frame, each in a fresh process; the node's default `range` checkpoint included). The range
-checkpoint's speed is not timed here (docs/RESULTS.md, "The range checkpoint", has its times). When Open3D or OpenCV's
+DESCRIPTION = """Points/s per stage of pca (k = 30 and k = 512), and learned and hybrid with every shipped checkpoint
+(default, lite, range: hybrid with range is the CPU node's default on a depth frame), on a simulated 640x480 depth
+frame and a noisy torus (--points), side by side in one run, with the neighbour searches, plain matmul GFLOP/s and
+PointCloud2 conversion, and on a CPU each method's resident memory (idle, and over a whole frame, each in a fresh
+process). When Open3D or OpenCV's
 RgbdNormals imports, or PCL's headers are installed (none is a dependency; PCL's tool compiles on the first run), also
 times and scores them on the same clouds as anchors. Prints the tables; with --out, also writes them into that
 markdown file, a file git tracks (docs/RESULTS.md) only with --update-tracked. See docs/RESULTS.md."""

@@ -1,5 +1,5 @@
 """`triplet-normal bench`: points/s per stage of the real inference path, every method side by side in one run, with
-the default checkpoint and lite (`timed_methods`; the range checkpoint is timed by docs/tools/real_frame_speed.py).
+every shipped checkpoint (`timed_methods`): `range` is what the node runs by default on a depth frame on a CPU.
 
 Two clouds: a simulated 640x480 depth frame (simulation.depth_camera, radius 0.05 m) and a noisy 100k-point torus
 (radius 5 % of its diagonal). Every method estimates the same fixed-seed subset of query points with neighbourhoods
@@ -83,7 +83,7 @@ def torus_sample(n: int, seed: int = 0, major: float = 1.0, minor: float = 0.4) 
 
 
 def timed_methods(checkpoint: str | None, method: str | None) -> list[tuple[str, dict]]:
-    """(label, NormalEstimator keyword arguments) of every method timed; the lite checkpoint when it ships."""
+    """(label, NormalEstimator keyword arguments) of every method timed; with no checkpoint named, every shipped one."""
     from ..core.learned.checkpoint import SHIPPED
 
     rows = [
@@ -92,11 +92,9 @@ def timed_methods(checkpoint: str | None, method: str | None) -> list[tuple[str,
         ("learned", {"method": "learned", "checkpoint": checkpoint or "default"}),
         ("hybrid", {"method": "hybrid", "checkpoint": checkpoint or "default"}),
     ]
-    if checkpoint is None and "lite" in SHIPPED:
-        rows += [
-            ("learned, lite", {"method": "learned", "checkpoint": "lite"}),
-            ("hybrid, lite", {"method": "hybrid", "checkpoint": "lite"}),
-        ]
+    for name in SHIPPED if checkpoint is None else ():
+        if name != "default":
+            rows += [(f"{kind}, {name}", {"method": kind, "checkpoint": name}) for kind in ("learned", "hybrid")]
     return [r for r in rows if method is None or r[1]["method"] == method]
 
 

@@ -2,6 +2,9 @@
 
 import os
 import re
+import shlex
+import sys
+import time
 from pathlib import Path
 
 HEADER = "# Results\n\nEach block below is written by the tool named in it; rerun the tool to refresh it.\n"
@@ -39,3 +42,28 @@ def read_section(path: str | Path, name: str) -> str | None:
         rf"<!-- BEGIN {re.escape(name)} -->\n(.*?)\n<!-- END {re.escape(name)} -->", path.read_text(), re.DOTALL
     )
     return match.group(1) if match else None
+
+
+def tool_command(script: str) -> str:
+    """The command line a docs tool was run with, as its block's `Command:` line quotes it.
+
+    Tools run from the repository root with the venv's interpreter (their docstrings say so), so the quoted command is
+    the one a reader reruns to refresh the block, whatever interpreter path this process was given.
+    """
+    return shlex.join([".venv/bin/python", script, *sys.argv[1:]])
+
+
+def tool_header(command: str, load: float, *more: str) -> str:
+    """A docs tool's block's first line: the command, today's date and the load it started under, then `more`.
+
+    The load is part of every measurement's record because these 2-core machines are shared: a figure taken at a load
+    of 9 does not compare with one taken quiet.
+    """
+    parts = [f"Command: `{command}`", time.strftime("%Y-%m-%d"), f"load average at start {load:.1f} (2 cores)", *more]
+    return " · ".join(parts)
+
+
+def tool_block(header: str, about: str, columns: str, rows: list[str]) -> str:
+    """A docs tool's block: its header line (`tool_header`), what a row is, and the table (`columns`: the header line
+    and the rule line)."""
+    return f"{header}\n\n{about}\n\n{columns}\n" + "\n".join(rows) + "\n"

@@ -96,36 +96,45 @@ RECIPES = {
     # points), inlier fits grown from the nearest 16 and 32, and 12 simulated depth frames and 12 LiDAR scans among
     # the training clouds, and phase (b) twice as long; each measured in docs/HISTORY.md ("Toward the floor").
     "scales": replace(CPU, scales=[8, 16, 32, 64, 128], inlier_seeds=[16, 32], range_frames=12, regressor_epochs=40),
-    # The lite checkpoint: the cpu recipe on half the patch (k = 64) and a 256-wide latent, about 6.5x fewer
-    # multiply-adds per patch than the default (docs/MODEL.md). Phase (b) is cheap at this width, so it gets 30 epochs.
+    # The lite checkpoint: the shipped recipe (`scales`) on half the patch (k = 64) and a 256-wide latent, about 6.5x
+    # fewer multiply-adds per patch than the default (docs/MODEL.md). Phase (b) is cheap at this width (about 7 s an
+    # epoch on 2 cores), so it runs until the learning rate has dropped to nothing: 120 epochs, the last 30 at rates
+    # of 0.001 and below (docs/HISTORY.md, "Lite and range with the scale head").
     "lite": Recipe(
         residual=True,
         loss="relative",
         k=64,
         encoder=[64, 64, 128, 256],
         regressor=[128, 64],
-        regressor_epochs=30,
+        regressor_epochs=120,
         regressor_patches_per_shape=3000,
         val_patches_per_cloud=300,
+        scales=[8, 16, 32, 64, 128],
+        inlier_seeds=[16, 32],
+        range_frames=12,
     ),
     # The range checkpoint, a CPU's network on range images: lite's training on a quarter of the patch (k = 32, a
     # 128-point pool) and a 128-wide latent, with lite's training clouds plus 12 depth frames and 12 LiDAR scans. On
     # depth frames it is within a few per cent of lite's error at a fraction of its pools, patches and network; on
-    # dense noisy clouds at large radii its small pool loses to lite's (docs/RESULTS.md, "The range checkpoint").
+    # dense noisy clouds at large radii its small pool loses to lite's (docs/MODEL.md, "The range network").
     # Its loss is the plain squared angle: the relative loss, which discounts patches where PCA is far off, left the
-    # network's edges as blurred as PCA's on range images (docs/RESULTS.md, "The loss decides the edges"). Phase (b)
+    # network's edges as blurred as PCA's on range images (docs/HISTORY.md, "The loss decides the edges"). Phase (b)
     # draws 6000 patches per cloud, twice lite's: on frames eval never scores that cut hybrid's error by a further
-    # 1-3 % on fold and depth frames (docs/RESULTS.md, "The loss decides the edges").
+    # 1-3 % on fold and depth frames (docs/HISTORY.md, "The loss decides the edges"). Its head is the default's scale
+    # head over fits of the nearest 8-64 points and inlier fits, and phase (b) runs until the rate has dropped to
+    # nothing (docs/HISTORY.md, "Lite and range with the scale head").
     "range": Recipe(
         residual=True,
         loss="angle",
         k=32,
         encoder=[32, 64, 128],
         regressor=[64, 32],
-        regressor_epochs=30,
+        regressor_epochs=120,
         regressor_patches_per_shape=6000,
         val_patches_per_cloud=300,
         range_frames=12,
+        scales=[8, 16, 32, 64],
+        inlier_seeds=[16, 32],
     ),
 }
 
