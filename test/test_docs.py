@@ -474,6 +474,21 @@ def test_every_results_table_is_in_a_block_its_command_writes() -> None:
         assert writes_block(source, name), f"block {name}: {writer.name} does not write it"
 
 
+@pytest.mark.parametrize(
+    ("doc", "block", "compose"),
+    [
+        ("README.md", "readme-accuracy", "readme_accuracy"),
+        ("README.md", "readme-speed", "readme_speed"),
+        ("docs/CHOOSING.md", "choosing", "choosing_table"),
+    ],
+)
+def test_headline_tables_are_the_results_blocks(doc: str, block: str, compose: str) -> None:
+    from triplet_normal_ros.evaluation import headlines
+
+    expected = getattr(headlines, compose)(RESULTS)
+    assert read_section(REPO / doc, block) == expected, f"rerun docs/tools/headline_tables.py ({doc}, {block})"
+
+
 def test_training_block_is_what_the_shipped_checkpoints_record() -> None:
     from triplet_normal_ros.evaluation.training_card import markdown
 

@@ -109,7 +109,8 @@ def test_a_lidar_scan_not_destaggered_gets_the_pool_answer_not_window_normals(ou
     normals, _ = organized.estimate(cloud, shape=shape)
     run = organized.last_run
     assert run.plan.survey == "pool" and run.search == "kdtree" and not run.plan.scan_lines
-    assert "not a range image" in run.plan.note and "1024x128" in run.plan.note  # width x height, as the node logs sizes
+    # Sizes read width x height, as the node logs them.
+    assert "not a range image" in run.plan.note and "1024x128" in run.plan.note
     unorganized, _ = NormalEstimator("pca", **preset).estimate(cloud)
     np.testing.assert_array_equal(normals, unorganized)
     returns = np.isfinite(cloud).all(axis=1)
