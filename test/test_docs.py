@@ -452,14 +452,20 @@ def block_writer(body: str) -> Path | None:
 
 
 def writes_block(source: str, name: str) -> bool:
-    """Whether `source` names block `name` as a literal, or as the f-string family it belongs to (`eval-{kind}`)."""
-    family = name.split("-")[0]
-    return f'"{name}"' in source or f"'{name}'" in source or f'f"{family}-{{' in source
+    """Whether `source` passes block `name` to `update_section`, as a literal, as a constant it defines, or as the
+    f-string family it belongs to (`eval-{kind}`); a module that only reads blocks does not count."""
+    family = re.escape(name.split("-")[0])
+    quoted = rf"""(["']{re.escape(name)}["']|f["']{family}-\{{)"""
+    if re.search(rf"update_section\([^)]*?{quoted}", source, re.DOTALL):
+        return True
+    constant = re.search(rf"^(\w+) = {quoted}", source, re.MULTILINE)
+    return bool(constant and re.search(rf"update_section\([^)]*\b{constant.group(1)}\b", source))
 
 
 def run_module_sources(path: Path) -> str:
-    """A subcommand's module and the evaluation modules it hands the writing to."""
-    return path.read_text() + "".join(p.read_text() for p in sorted((PACKAGE_DIR / "evaluation").glob("*.py")))
+    """A subcommand's module and the evaluation modules that write its blocks (those calling `update_section`)."""
+    writers = [p for p in sorted((PACKAGE_DIR / "evaluation").glob("*.py")) if "update_section(" in p.read_text()]
+    return path.read_text() + "".join(p.read_text() for p in writers if p.name != "report.py")
 
 
 def test_every_results_table_is_in_a_block_its_command_writes() -> None:

@@ -40,6 +40,9 @@ from probe_client import ProbeClient, cropped, matched_client
 from scipy.spatial import cKDTree
 from sensor_msgs.msg import PointCloud2, PointField
 
+from triplet_normal_ros.core.config.device import device_type
+from triplet_normal_ros.core.config.plan import checkpoint_for
+from triplet_normal_ros.core.config.settings import Settings
 from triplet_normal_ros.io.pointcloud2 import NORMAL_FIELDS, make_cloud, read_field, read_xyz
 from triplet_normal_ros.ros.params import SPECS, NodeSettings
 from triplet_normal_ros.ros.tools.replay import Frame, load_frame
@@ -428,10 +431,8 @@ def test_the_shipped_params_file_with_default_qos_then_sigterm(start_node, insta
         assert out is not None
         assert np.isfinite(normals_of(out)).all(axis=1).sum() > 300
     assert node.log.count("first cloud received:") == 1  # announced once, however often it was resent
-    served = re.findall(
-        r"first answer to (?:a range image|a cloud that is not a range image): hybrid: .*checkpoint (\S+)", node.log
-    )
-    assert len(served) == 1 and served[0] in shipped, node.log[-3000:]  # which checkpoint served, said once per path
+    served = re.findall(r"first answer on this path: hybrid: .*checkpoint (\S+)", node.log)  # said once per path
+    assert served == [checkpoint_for(Settings(), device_type("auto"), range_image=True)], node.log[-3000:]
     segments = shm_segments(node.proc.pid)
     code, _ = node.stop(signal.SIGTERM, timeout=EXIT_GUARD_S)  # a hang guard, not a speed requirement
     assert code == 0, node.log[-2000:]  # not the watchdog's exit 2: shut down within the node's join timeout
@@ -453,7 +454,9 @@ def test_the_readme_replay_check_gets_a_full_frame_answered(start_node, ros_env:
     assert "fields: x, y, z, rgb, normal_x, normal_y, normal_z, curvature" in done.stdout, done.stdout
     answered, valid = (int(n.replace(",", "")) for n in re.search(r"([\d,]+) of ([\d,]+) valid", done.stdout).groups())
     assert answered >= 0.95 * valid, done.stdout
-    assert re.search(r"first answer to a range image: hybrid: .*checkpoint \S+", node.log), node.log[-3000:]
+    served = re.findall(r"first answer on this path: hybrid: integral-image windows.*checkpoint (\S+)", node.log)
+    range_image = checkpoint_for(Settings(), device_type("auto"), range_image=True)  # range on a CPU
+    assert served == [range_image], node.log[-3000:]
 
 
 @pytest.mark.parametrize(

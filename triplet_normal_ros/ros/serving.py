@@ -124,7 +124,7 @@ class ServingMixin:
         self._mailbox: Mailbox[PointCloud2] = Mailbox()
         self._stats = ProcessingStats()
         self._cancel = threading.Event()
-        self._paths_noted: set[str] = set()  # each path a cloud took, said once (`_note_plan`)
+        self._paths_noted: set[tuple[str, str]] = set()  # each path a cloud took, said once (`_note_plan`)
         self._publisher: Publisher | None = None
         self._subscription = None
         self._input_topic = ""
@@ -349,11 +349,10 @@ class ServingMixin:
         learns which one served (a CPU's default differs between range images and other clouds), and say why a
         grid was not trusted (not a range image), which explains its pool path's cost."""
         plan = estimator.last_run.plan
-        if plan is None or plan.steps in self._paths_noted:
+        if plan is None or (plan.steps, plan.note) in self._paths_noted:
             return
-        self._paths_noted.add(plan.steps)
-        kind = "a range image" if plan.uses_range_image else "a cloud that is not a range image"
-        line = f"first answer to {kind}: {plan.describe()}"
+        self._paths_noted.add((plan.steps, plan.note))
+        line = f"first answer on this path: {plan.describe()}"
         if plan.note:
             self.get_logger().warning(f"{line}; {plan.note}")
         else:
