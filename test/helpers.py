@@ -16,6 +16,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.learned.model import regressor_dims
+from triplet_normal_ros.core.learned.scales import candidate_count
 from triplet_normal_ros.io.cloud_files import write_normals
 from triplet_normal_ros.ros.params import SPECS, NodeSettings, apply
 from triplet_normal_ros.simulation.range_frame import RangeFrame
@@ -29,10 +31,11 @@ HELDOUT_SHAPE = "v_notch_block"
 
 
 def multiply_adds(architecture: dict, k: int) -> int:
-    """A checkpoint's multiply-adds per patch, from its stored architecture (no scale head): each of the k points
-    through the encoder's Linear layers, then one latent through the regressor."""
+    """A checkpoint's multiply-adds per patch, from its stored architecture: each of the k points through the
+    encoder's Linear layers, then one latent and the scale head's cues through the regressor."""
     encoder = [3, *architecture["encoder"]]
-    head = [encoder[-1], *architecture["regressor"], 3]
+    candidates = candidate_count(architecture.get("scales", []), architecture.get("inlier_seeds", []))
+    head = regressor_dims(encoder[-1], architecture["regressor"], candidates)
     return k * sum(a * b for a, b in itertools.pairwise(encoder)) + sum(a * b for a, b in itertools.pairwise(head))
 
 

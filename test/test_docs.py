@@ -135,19 +135,14 @@ ALLOWED: dict[tuple[str, str], tuple[str, Callable[[], set[float]]]] = {
 
 
 def _flops_per_multiply_add() -> float:
-    """`bench.network_mflop` of the default checkpoint over its multiply-adds counted from the layer widths here."""
-    import itertools
+    """`bench.network_mflop` of the default checkpoint over its multiply-adds counted by the tests' own arithmetic."""
+    from helpers import multiply_adds
 
     from triplet_normal_ros.core.learned.checkpoint import read_metadata, resolve_checkpoint
     from triplet_normal_ros.evaluation.bench import network_mflop
 
     meta = read_metadata(resolve_checkpoint("default"))
-    widths, head = [3, *meta["architecture"]["encoder"]], [meta["architecture"]["encoder"][-1]]
-    head += [*meta["architecture"]["regressor"], 3]
-    macs = meta["k"] * sum(a * b for a, b in itertools.pairwise(widths)) + sum(
-        a * b for a, b in itertools.pairwise(head)
-    )
-    return round(network_mflop("default")[1] * 1e6 / macs, 6)
+    return round(network_mflop("default")[1] * 1e6 / multiply_adds(meta["architecture"], meta["k"]), 6)
 
 
 def figures(text: str) -> list[tuple[str, str]]:

@@ -23,7 +23,8 @@ from torch import nn
 from triplet_normal_ros.core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.learned.checkpoint import SHIPPED, load_checkpoint
-from triplet_normal_ros.core.learned.scales import ScaleFits, cue_count
+from triplet_normal_ros.core.learned.model import regressor_dims
+from triplet_normal_ros.core.learned.scales import ScaleFits, candidate_count, cue_count
 from triplet_normal_ros.evaluation import range_eval
 from triplet_normal_ros.evaluation.bench import torus_cloud
 from triplet_normal_ros.evaluation.evaluate import query_indices, validation_clouds
@@ -35,9 +36,8 @@ BATCH, ROUNDS, SECONDS_PER_ROUND = 256, 5, 2.0
 def multiply_adds(architecture: dict, k: int) -> int:
     """Multiply-adds of one patch: every point through the encoder's widths, then the latent through the regressor."""
     encoder = [3, *architecture["encoder"]]
-    scales, seeds = architecture.get("scales", []), architecture.get("inlier_seeds", [])
-    candidates = len(scales) + 1 + len(seeds) if scales else 0  # a scale head reads cues and weighs candidates
-    regressor = [encoder[-1] + cue_count(scales, seeds) * bool(scales), *architecture["regressor"], 3 + candidates]
+    candidates = candidate_count(architecture.get("scales", []), architecture.get("inlier_seeds", []))
+    regressor = regressor_dims(encoder[-1], architecture["regressor"], candidates)
     per_point = sum(a * b for a, b in itertools.pairwise(encoder))
     return k * per_point + sum(a * b for a, b in itertools.pairwise(regressor))
 

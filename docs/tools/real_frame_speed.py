@@ -24,6 +24,10 @@ from triplet_normal_ros.evaluation.report import tool_block, tool_command, tool_
 from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
 
 SCRIPT = "docs/tools/real_frame_speed.py"
+COLUMNS = (
+    "| frame | valid points | method | s per frame | network share | × Open3D KNN30 |\n"
+    "| --- | ---: | --- | ---: | ---: | ---: |"
+)
 RADIUS = 0.05
 #: The row that is what a node user gets with no parameter set: a range image on a CPU gets `range`.
 NODE_DEFAULT = "hybrid, range (the node's default on a CPU)"
@@ -89,11 +93,7 @@ def markdown(command: str, load: float, table: list[str]) -> str:
         "Every valid pixel of the shipped real Kinect frames, radius 0.05 m, each method once after a warm-up on a "
         "crop (the checkpoint and compiled kernels loaded); Open3D KNN30 the median of 3 runs on the finite points."
     )
-    columns = (
-        "| frame | valid points | method | s per frame | network share | × Open3D KNN30 |\n"
-        "| --- | ---: | --- | ---: | ---: | ---: |"
-    )
-    return tool_block(tool_header(command, load, f"{version} (not a dependency)"), about, columns, table)
+    return tool_block(tool_header(command, load, f"{version} (not a dependency)"), about, COLUMNS, table)
 
 
 def main() -> None:
@@ -101,6 +101,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, help="results file to write the `real-frame-speed` block into")
     args = parser.parse_args()
     load = os.getloadavg()[0]
+    print(COLUMNS, flush=True)
     table = [row for name in FRAMES for row in rows(name)]
     if args.out:
         print(f"wrote {update_section(args.out, 'real-frame-speed', markdown(tool_command(SCRIPT), load, table))}")

@@ -46,7 +46,7 @@ def test_lite_is_at_least_five_times_cheaper_than_default():
     lite, default = read_metadata(resolve_checkpoint("lite")), read_metadata(resolve_checkpoint("default"))
     lite_macs = multiply_adds(lite["architecture"], lite["k"])
     default_macs = multiply_adds(default["architecture"], default["k"])
-    assert lite_macs == 2_937_024  # the figure docs/MODEL.md quotes (5.87 MFLOP)
+    assert lite_macs == 2_945_728  # the figure docs/MODEL.md quotes (5.89 MFLOP)
     assert default_macs >= 5 * lite_macs
     lite_params = sum(p.numel() for p in load_checkpoint("lite")[0].parameters())
     default_params = sum(p.numel() for p in load_checkpoint("default")[0].parameters())

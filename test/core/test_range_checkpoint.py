@@ -45,7 +45,7 @@ def test_range_metadata_records_the_range_recipe_and_conventions():
 def test_range_is_at_least_eight_times_cheaper_than_lite_per_patch():
     ranged, lite = read_metadata(resolve_checkpoint("range")), read_metadata(resolve_checkpoint("lite"))
     range_macs = multiply_adds(ranged["architecture"], ranged["k"])
-    assert range_macs == 341_088  # the figure docs/MODEL.md quotes (0.68 MFLOP)
+    assert range_macs == 344_896  # the figure docs/MODEL.md quotes (0.69 MFLOP)
     assert 8 * range_macs <= multiply_adds(lite["architecture"], lite["k"])
     assert POOL_FACTOR * ranged["k"] == 128  # its pool, half of lite's: the searches and patches it saves
 

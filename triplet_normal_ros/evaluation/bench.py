@@ -210,12 +210,17 @@ def matmul_gflops(size: int = 1024, repeats: int = 10) -> float:
 
 
 def network_mflop(checkpoint: str | None) -> tuple[int, float]:
-    """(k, MFLOP per patch) of the checkpoint's network, by arithmetic from its layer widths."""
+    """(k, MFLOP per patch) of the checkpoint's network, by arithmetic from its layer widths (the scale head's cues
+    and weights included; its plane fits are not multiply-adds of the network)."""
     from ..core.learned.checkpoint import read_metadata, resolve_checkpoint
+    from ..core.learned.model import regressor_dims
+    from ..core.learned.scales import candidate_count
 
     meta = read_metadata(resolve_checkpoint(checkpoint or "default"))
-    widths = [3, *meta["architecture"]["encoder"]]
-    head = [widths[-1], *meta["architecture"]["regressor"], 3]
+    architecture = meta["architecture"]
+    widths = [3, *architecture["encoder"]]
+    candidates = candidate_count(architecture.get("scales", []), architecture.get("inlier_seeds", []))
+    head = regressor_dims(widths[-1], architecture["regressor"], candidates)
     per_point = sum(a * b for a, b in itertools.pairwise(widths))
     per_patch = meta["k"] * per_point + sum(a * b for a, b in itertools.pairwise(head))
     return meta["k"], 2 * per_patch / 1e6

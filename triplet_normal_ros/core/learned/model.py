@@ -9,7 +9,7 @@ import itertools
 import torch
 from torch import nn
 
-from .scales import CUES_PER_SCALE, ScaleFits, check_scales
+from .scales import CUES_PER_SCALE, ScaleFits, candidate_count, check_scales
 
 DEFAULT_ENCODER = (64, 64, 128, 1024)
 DEFAULT_REGRESSOR = (512, 256)
@@ -78,6 +78,12 @@ class PatchEncoder(nn.Module):
         return self.mlp(patches)
 
 
+def regressor_dims(latent_dim: int, widths: tuple[int, ...] | list[int], candidates: int) -> tuple[int, ...]:
+    """The regressor's layer widths, input to output: the latent plus each candidate's cues in, the correction and a
+    weight per candidate out. The MFLOP arithmetic of `bench` counts the same layers."""
+    return (latent_dim + candidates * CUES_PER_SCALE, *widths, 3 + candidates)
+
+
 class NormalRegressor(nn.Module):
     """Latent -> unit normal in the patch frame.
 
@@ -100,10 +106,10 @@ class NormalRegressor(nn.Module):
     ) -> None:
         super().__init__()
         layers: list[nn.Module] = []
-        dims = (latent_dim + candidates * CUES_PER_SCALE, *widths)
-        for a, b in itertools.pairwise(dims):
+        dims = regressor_dims(latent_dim, widths, candidates)
+        for a, b in itertools.pairwise(dims[:-1]):
             layers += [nn.Linear(a, b), nn.BatchNorm1d(b), nn.ReLU()]
-        layers.append(nn.Linear(dims[-1], 3 + candidates))
+        layers.append(nn.Linear(dims[-2], dims[-1]))
         self.mlp = nn.Sequential(*layers)
         self.residual = residual or candidates > 0
         self.candidates = candidates
@@ -149,7 +155,7 @@ class TripletNormalNet(nn.Module):
         }
         self.scales, self.inlier_seeds = scales, inlier_seeds
         self.encoder = PatchEncoder(tuple(encoder))
-        candidates = len(scales) + 1 + len(inlier_seeds) if scales else 0
+        candidates = candidate_count(scales, inlier_seeds)
         self.regressor = NormalRegressor(encoder[-1], tuple(regressor), residual, candidates)
 
     @classmethod

@@ -45,9 +45,14 @@ def check_scales(scales: tuple[int, ...] | list[int]) -> tuple[int, ...]:
     return scales
 
 
+def candidate_count(scales: tuple[int, ...] | list[int], seeds: tuple[int, ...] | list[int] = ()) -> int:
+    """The scale head's candidate normals: a fit per scale, the whole pool, an inlier fit per seed (0: no head)."""
+    return len(scales) + 1 + len(seeds) if scales else 0
+
+
 def cue_count(scales: tuple[int, ...] | list[int], seeds: tuple[int, ...] | list[int] = ()) -> int:
     """Width of `ScaleFits.cues` for a model with these scales and inlier-fit seeds."""
-    return (len(scales) + 1 + len(seeds)) * CUES_PER_SCALE
+    return candidate_count(scales, seeds) * CUES_PER_SCALE
 
 
 def scale_fits(
