@@ -282,11 +282,13 @@ def _heatmap(results: list[CloudScores], path: Path) -> tuple[Path, CloudScores]
 
 
 def _header(command: str, checkpoint: str, quick: bool, scorer: CloudScorer, per_cloud: int) -> str:
+    from ..core.learned.checkpoint import checkpoint_sha256
+
     meta = scorer.ours.metadata
     trained_by = meta.get("training", {}).get("command") if isinstance(meta.get("training"), dict) else None
     lines = [
         f"Command: `{command}`" + (" (**--quick subset: not a result**)" if quick else ""),
-        f"Checkpoint: `{checkpoint}` (sha256 {_sha256(checkpoint)[:12]}, "
+        f"Checkpoint: `{checkpoint}` (sha256 {checkpoint_sha256(checkpoint)[:12]}, "
         f"k = {scorer.ours.k}"
         + (f", trained by `{trained_by}`" if trained_by else "")
         + f") · device {scorer.ours.device} · {per_cloud} query points per cloud, fixed seed "
@@ -298,14 +300,6 @@ def _header(command: str, checkpoint: str, quick: bool, scorer: CloudScorer, per
         "against the ground truth. PCA uses every point of the ball up to the learned method's pool (4k nearest).",
     ]
     return "\n".join(lines)
-
-
-def _sha256(checkpoint: str) -> str:
-    import hashlib
-
-    from ..core.learned.checkpoint import resolve_checkpoint
-
-    return hashlib.sha256(resolve_checkpoint(checkpoint).read_bytes()).hexdigest()
 
 
 def _row(r: CloudScores, floor: bool = False) -> str:

@@ -7,10 +7,15 @@ checkpoint is copied in. Curves and the runs that were not shipped stay in docs/
 
 from __future__ import annotations
 
-import hashlib
 from typing import Any
 
-from ..core.learned.checkpoint import SHIPPED, load_checkpoint, read_metadata, shipped_checkpoint_path
+from ..core.learned.checkpoint import (
+    SHIPPED,
+    checkpoint_sha256,
+    load_checkpoint,
+    read_metadata,
+    shipped_checkpoint_path,
+)
 from .bench import network_mflop
 
 COMMAND = ".venv/bin/python docs/tools/training_table.py --out docs/RESULTS.md"
@@ -57,7 +62,7 @@ def row(name: str) -> str:
     epochs = f"{recipe['encoder_epochs'] if recipe.get('triplet') else 0}; {recipe['regressor_epochs']}"
     cells = (
         f"`{name}`",
-        f"{hashlib.sha256(path.read_bytes()).hexdigest()[:12]}…",
+        f"{checkpoint_sha256(path)[:12]}…",
         str(meta["k"]),
         widths,
         f"{parameters:,}",

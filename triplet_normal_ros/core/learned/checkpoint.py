@@ -1,5 +1,6 @@
 """Checkpoints as safetensors weights plus JSON metadata in the same file's header: nothing is ever unpickled."""
 
+import hashlib
 import json
 from importlib import resources
 from pathlib import Path
@@ -58,6 +59,12 @@ def save_checkpoint(path: str | Path, model: TripletNormalNet, metadata: dict[st
     tensorfile.write(tmp, tensors, {_META_KEY: json.dumps(meta, sort_keys=True)})
     tmp.replace(path)
     return path
+
+
+def checkpoint_sha256(spec: str | Path) -> str:
+    """The hex digest of a checkpoint file (a shipped name or a path): what eval's tables and the training block quote,
+    so that a figure names the exact file that produced it."""
+    return hashlib.sha256(resolve_checkpoint(spec).read_bytes()).hexdigest()
 
 
 def read_metadata(path: str | Path) -> dict[str, Any]:
