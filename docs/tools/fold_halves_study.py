@@ -29,14 +29,8 @@ import torch
 from triplet_normal_ros.core.config import defaults
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.range_image.check import inspect_grid
-from triplet_normal_ros.core.range_image.image import MomentImage, box_pca
-from triplet_normal_ros.core.range_image.survey import (
-    PART_SPAN,
-    opens,
-    ray_noise_normal,
-    survey_and_cue,
-    survey_on_slope,
-)
+from triplet_normal_ros.core.range_image.image import MomentImage, box_pca, ray_noise_normal
+from triplet_normal_ros.core.range_image.survey import PART_SPAN, opens, survey_and_cue, survey_on_slope
 from triplet_normal_ros.evaluation.segmentation import (
     adjusted_rand_index,
     recovered_segments,

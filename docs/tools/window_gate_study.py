@@ -3,7 +3,7 @@
 Per query of three simulated depth frames (selection seeds 100-102, every 23rd valid pixel, r = 5 cm): the learned
 normal (KD-tree pool, as `learned` computes it), today's hybrid (the quadric F and bend gate over the 512-point pool,
 pool PCA where it stays shut), the lite checkpoint's learned normal, and the survey's window PCA and ray-noise plane
-(`hybrid.ray_noise_normal`) with its O(1) cues (`hybrid.structure`: the parts' heights as a z score
+(`ray_noise_normal`) with its O(1) cues (`hybrid.structure`: the parts' heights as a z score
 and a bend). Hybrid on the survey = the network where the gate opens, else the survey's normal.
 Prints one table: MSAE (rad², sign-invariant) and the share sent to the network per gate, beside learned, the
 pool-survey hybrid and the PCAs.
@@ -21,8 +21,8 @@ from gate_study import pool_gate  # the pool hybrid's gate, as the first study c
 from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS, POOL_FACTOR
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.range_image.check import range_pitch
-from triplet_normal_ros.core.range_image.image import MomentImage
-from triplet_normal_ros.core.range_image.survey import ray_noise_normal, structure
+from triplet_normal_ros.core.range_image.image import MomentImage, ray_noise_normal
+from triplet_normal_ros.core.range_image.survey import structure
 from triplet_normal_ros.evaluation.metrics import angles_rad
 from triplet_normal_ros.simulation.depth_camera import depth_frame
 

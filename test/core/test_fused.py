@@ -189,15 +189,17 @@ BALL_BOUND = {"simulated depth": 2.1, "simulated lidar": 1.05}
 
 @pytest.mark.parametrize("name", sorted(FRAMES))
 def test_the_compiled_finish_is_the_torch_finish(name: str) -> None:
-    """Unit float32 normals and PCL's curvature, NaN at holes and where a window holds no plane, as `kernels.finish`
-    of `frames.surface_variation` gives them for the same windows."""
+    """Unit float32 normals (the windows' ray-noise planes) and PCL's curvature, NaN at holes and where a window holds
+    no plane, as `kernels.finish` of `image.ray_noise_normal` and `frames.surface_variation` gives them for the same
+    windows."""
     from triplet_normal_ros.core.paths.call import finish
     from triplet_normal_ros.core.pca.frames import surface_variation
+    from triplet_normal_ros.core.range_image.image import ray_noise_normal
 
     (_, image), (_, fit) = _fits(name)
     normals, curvature = image.finish()
     ref_normals, ref_curvature = finish(
-        fit.normal, surface_variation(fit.eigvals), fit.valid & image.finite.reshape(-1)
+        ray_noise_normal(fit), surface_variation(fit.eigvals), fit.valid & image.finite.reshape(-1)
     )
     np.testing.assert_array_equal(np.isnan(normals), np.isnan(ref_normals))
     assert np.isnan(normals).any(axis=1).sum() > 0 and np.isfinite(normals).all(axis=1).sum() > 1000

@@ -14,7 +14,7 @@ import torch
 from ..config.plan import Plan
 from ..pca.frames import surface_variation
 from ..range_image import lattice
-from ..range_image.image import MomentImage
+from ..range_image.image import MomentImage, ray_noise_normal
 from ..range_image.image_numba import CompiledImage
 from ..range_image.lattice import agreed, plan_lattice
 from ..range_image.sides import snap_to_sides
@@ -45,8 +45,10 @@ def range_image_path(
 
 
 def window_pca(call: Call, image: MomentImage, query: np.ndarray, progress) -> tuple[np.ndarray, np.ndarray]:
-    """PCA of every pixel's window at once (`range_image.image`; compiled, one pass per pixel to the finished answer),
-    then the query's rows."""
+    """Every pixel's window plane at once, then the query's rows (`range_image.image`; compiled, one pass per pixel to
+    the finished answer). The plane is the window's ray-noise plane (`image.ray_noise_normal`): PCA's normal on a
+    noise-free window, and on a noisy one the normal PCA tips toward the ray (docs/HISTORY.md, "Window `pca` with the
+    ray-noise plane"). The curvature is PCA's surface variation of the window."""
     s = call.settings
     if image.compiled:
         normals, curvature = image.normals(s.radius, s.range_scale)
@@ -54,7 +56,7 @@ def window_pca(call: Call, image: MomentImage, query: np.ndarray, progress) -> t
     else:
         fit = image.pca(s.radius, s.range_scale)
         finite = image.finite.reshape(-1)
-        normals, curvature = finish(fit.normal, surface_variation(fit.eigvals), fit.valid & finite)
+        normals, curvature = finish(ray_noise_normal(fit), surface_variation(fit.eigvals), fit.valid & finite)
     whole = len(query) == len(finite) and bool(query[0] == 0) and bool((np.diff(query) == 1).all())
     call.run.estimated = int(finite.sum()) if whole else int(finite[torch.from_numpy(query)].sum())
     if progress is not None:

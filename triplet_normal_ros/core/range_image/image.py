@@ -371,3 +371,28 @@ def _window_pca(
     eigvals, normal = smallest_eigenvector(cov)
     valid = (count >= MIN_NEIGHBOURS) & torch.isfinite(normal).all(dim=-1) & lines & spans_plane(eigvals)
     return WindowPCA(normal, eigvals, count, valid, reach, mean + offset, cov, box)
+
+
+def ray_noise_normal(fit: WindowPCA) -> torch.Tensor:
+    """The plane normal that explains each window when its noise runs along the sensor's rays: adj(C) · ray.
+
+    A depth camera measures depth and a LiDAR range, so a point's error moves it along its own ray: the window's
+    covariance is the surface's (rank 2, null along the normal n) plus s² · ray rayᵀ. The smallest-eigenvector PCA
+    answer tilts toward the ray once s rivals the window's extent (a Kinect's 3 cm at 4 m in a 5 cm ball), but
+    C⁻¹ · ray is parallel to n whatever s is (Sherman-Morrison), and the adjugate gives that direction without a
+    division, also for a noise-free window (where C is singular and adj(C) · ray = λ1 λ2 (n · ray) n). The ray is the
+    window centroid's direction from the origin: organized clouds come in their sensor's frame.
+    """
+    a00, a01, a02, a11, a12, a22 = fit.cov.unbind(dim=-1)
+    rows = (
+        torch.stack((a11 * a22 - a12 * a12, a02 * a12 - a01 * a22, a01 * a12 - a02 * a11), dim=-1),
+        torch.stack((a02 * a12 - a01 * a22, a00 * a22 - a02 * a02, a01 * a02 - a00 * a12), dim=-1),
+        torch.stack((a01 * a12 - a02 * a11, a01 * a02 - a00 * a12, a00 * a11 - a01 * a01), dim=-1),
+    )
+    ray = torch.nn.functional.normalize(fit.mean, dim=-1)
+    normal = torch.stack([(row * ray).sum(dim=-1) for row in rows], dim=-1)
+    length = normal.norm(dim=-1, keepdim=True)
+    # adj(C) vanishes for collinear or coincident points, and its product for a window seen edge-on (n ⊥ ray): there
+    # the noise model says nothing and PCA's axis stands.
+    usable = length > 1e-12 * fit.eigvals[:, 2:].square()
+    return torch.where(usable, normal / length.clamp_min(1e-300), fit.normal)

@@ -43,6 +43,10 @@ _NO_SLOPE = np.zeros((0, 3))
 _NO_CHANGE = np.zeros(0, dtype=np.bool_)
 #: (up, down, left, right) of the four half windows, then the four quarter windows.
 _SIDES = np.array(ONE_SIDED, dtype=np.int64)
+#: A window's half-width at a shrink level is rounded(half × level / SHRINK_LEVELS); a power of two divides by a shift,
+#: which for integers of either sign is the floor division the torch code does, without a divide per box.
+_LEVEL_SHIFT = SHRINK_LEVELS.bit_length() - 1
+assert 1 << _LEVEL_SHIFT == SHRINK_LEVELS
 
 
 class CompiledImage:
@@ -82,8 +86,9 @@ class CompiledImage:
 
     @property
     def counts(self) -> torch.Tensor:
-        """The count channel of the moment table (`MomentImage.counts`), copied out only when asked for."""
-        return self.table[..., :1].contiguous()
+        """The count channel of the moment table (`MomentImage.counts`): the count table `pca` built for its window
+        search, as an (H + 1, W + 1, 1) view."""
+        return torch.from_numpy(self.fit["counts"]).unsqueeze(-1)
 
     @property
     def first(self) -> torch.Tensor:
@@ -96,7 +101,10 @@ class CompiledImage:
         n = len(self.fit["count"])
         normals, curvature = np.empty((n, 3), dtype=np.float32), np.empty(n, dtype=np.float32)
         finite = ~np.isnan(self.fit["ranges"]).reshape(-1)
-        bands(_finish, n, self.fit["normal"], self.fit["eigvals"], self.fit["valid"], finite, normals, curvature)
+        fit = self.fit
+        bands(
+            _finish, n, fit["normal"], fit["eigvals"], fit["valid"], finite, fit["mean"], fit["cov"], normals, curvature
+        )
         return normals, curvature
 
     def normals(self, radius: float, range_scale: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -144,7 +152,7 @@ def window_pca(
     height, width = tables["ranges"].shape
     fit = _empty_fit(height * width)
     bands(
-        _pixels, height, tables["table"], tables["points"], tables["ranges"], tables["reach_grid"],
+        _pixels, height, tables["table"], tables["counts"], tables["points"], tables["ranges"], tables["reach_grid"],
         tables["pitch_row"], tables["pitch_col"], tables["col_walls"], tables["row_walls"], float(radius),
         _NO_SLOPE, _NO_CHANGE,
         *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
@@ -166,8 +174,9 @@ def window_normals(
     normals = np.empty((height * width, 3), dtype=np.float32)
     curvature = np.empty(height * width, dtype=np.float32)
     bands(
-        _normals, height, tables["table"], tables["ranges"], tables["reach_grid"], tables["pitch_row"],
-        tables["pitch_col"], tables["col_walls"], tables["row_walls"], normals, curvature, pieces=4,
+        _normals, height, tables["table"], tables["counts"], tables["offset"], tables["ranges"], tables["reach_grid"],
+        tables["pitch_row"], tables["pitch_col"], tables["col_walls"], tables["row_walls"], normals, curvature,
+        pieces=4,
     )  # fmt: skip
     return normals, curvature, tables["ranges"]
 
@@ -187,6 +196,7 @@ def _tables(
     table = np.zeros((height + 1, width + 1, 10))
     bands(_moments_down, width, points, ranges, offset, table)
     bands(_sum_across, height, table)
+    counts = np.ascontiguousarray(table[..., 0])  # what the window search and validity read, 8 bytes a pixel
     reach = np.full((height, width), float(radius)) if range_scale == 0 else np.maximum(ranges * range_scale, radius)
     rows = np.ascontiguousarray(pitch_row, dtype=np.float64)
     cols = np.ascontiguousarray(pitch_col, dtype=np.float64)
@@ -194,7 +204,7 @@ def _tables(
     row_walls = np.empty((max(height - 1, 0) + 1, width + 1))
     bands(_walls, 2, ranges, reach, rows, cols, col_walls, row_walls)
     return {
-        "points": points, "ranges": ranges, "table": table, "offset": offset, "reach_grid": reach,
+        "points": points, "ranges": ranges, "table": table, "counts": counts, "offset": offset, "reach_grid": reach,
         "pitch_row": rows, "pitch_col": cols, "col_walls": col_walls, "row_walls": row_walls,
     }  # fmt: skip
 
@@ -214,7 +224,7 @@ def window_pca_on_slope(
     n = height * width
     fit, changed = _empty_fit(n), np.zeros(n, dtype=np.bool_)
     bands(
-        _pixels, height, out["table"], points, out["ranges"], out["reach_grid"],
+        _pixels, height, out["table"], out["counts"], points, out["ranges"], out["reach_grid"],
         np.ascontiguousarray(pitch_row, dtype=np.float64), np.ascontiguousarray(pitch_col, dtype=np.float64),
         out["col_walls"], out["row_walls"], float(radius), np.ascontiguousarray(slope, dtype=np.float64), changed,
         *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
@@ -249,18 +259,44 @@ def _keep_first(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _finish(normal, eigvals, valid, finite, normals, curvature, lo, hi):
-    for i in range(lo, hi):
-        _finish_one(normal[i], eigvals[i], valid[i] and finite[i], normals, curvature, i)
+def ray_noise_normal(cov, mx, my, mz, largest, px, py, pz):
+    """`image.ray_noise_normal` of one window: adj(C) · ray for the covariance's upper triangle `cov` (6,), the ray
+    toward the window's centroid (mx, my, mz) in the cloud's frame, and its `largest` eigenvalue; PCA's axis
+    (px, py, pz) where adj(C) · ray vanishes."""
+    return _ray_noise(cov[0], cov[1], cov[2], cov[3], cov[4], cov[5], mx, my, mz, largest, px, py, pz)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _finish_one(normal, eigvals, answered, normals, curvature, i):
-    """Row i of the output: the unit normal and PCL's curvature λ0 / (λ0 + λ1 + λ2), NaN unless `answered`."""
+def _ray_noise(a00, a01, a02, a11, a12, a22, mx, my, mz, largest, px, py, pz):
+    """`ray_noise_normal` of the covariance's six entries as scalars, which the one-pass kernel keeps in registers."""
+    length = max(math.sqrt(mx * mx + my * my + mz * mz), 1e-12)
+    rx, ry, rz = mx / length, my / length, mz / length
+    nx = (a11 * a22 - a12 * a12) * rx + (a02 * a12 - a01 * a22) * ry + (a01 * a12 - a02 * a11) * rz
+    ny = (a02 * a12 - a01 * a22) * rx + (a00 * a22 - a02 * a02) * ry + (a01 * a02 - a00 * a12) * rz
+    nz = (a01 * a12 - a02 * a11) * rx + (a01 * a02 - a00 * a12) * ry + (a00 * a11 - a01 * a01) * rz
+    size = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if size > 1e-12 * largest * largest:
+        size = max(size, 1e-300)
+        return nx / size, ny / size, nz / size
+    return px, py, pz  # the noise model says nothing here: PCA's axis stands
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _finish(normal, eigvals, valid, finite, mean, cov, normals, curvature, lo, hi):
+    for i in range(lo, hi):
+        nx, ny, nz = ray_noise_normal(
+            cov[i], mean[i, 0], mean[i, 1], mean[i, 2], eigvals[i, 2], normal[i, 0], normal[i, 1], normal[i, 2]
+        )
+        _finish_one(nx, ny, nz, eigvals[i], valid[i] and finite[i], normals, curvature, i)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _finish_one(x, y, z, eigvals, answered, normals, curvature, i):
+    """Row i of the output: the unit normal (x, y, z) and PCL's curvature λ0 / (λ0 + λ1 + λ2), NaN unless
+    `answered`."""
     if not answered:
         normals[i, 0] = normals[i, 1] = normals[i, 2] = curvature[i] = np.nan
         return
-    x, y, z = normal[0], normal[1], normal[2]
     length = max(math.sqrt(x * x + y * y + z * z), 1e-12)
     normals[i, 0], normals[i, 1], normals[i, 2] = x / length, y / length, z / length
     total = eigvals[0] + eigvals[1] + eigvals[2]
@@ -268,23 +304,29 @@ def _finish_one(normal, eigvals, answered, normals, curvature, i):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _normals(table, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, normals, curvature, lo, hi):
-    """Rows lo..hi of `window_normals`: each pixel's window, its PCA and validity, and the finished answer. A hole
-    answers NaN without a window, since `_finish` discards its fit."""
+def _normals(
+    table, counts, offset, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, normals, curvature, lo, hi
+):
+    """Rows lo..hi of `window_normals`: each pixel's window, its PCA and validity, and the finished answer, the
+    window's ray-noise plane. A hole answers NaN without a window, since `_finish` discards its fit."""
     height, width = ranges.shape
     eigvals, normal = np.empty(3), np.empty(3)
     for r in range(lo, hi):
         for c in range(width):
             i = r * width + c
             if np.isnan(ranges[r, c]):
-                _finish_one(normal, eigvals, False, normals, curvature, i)
+                _finish_one(0.0, 0.0, 0.0, eigvals, False, normals, curvature, i)
                 continue
             half_row, half_col = _halves(ranges, reach, pitch_row, pitch_col, r, c)
-            top, bottom, left, right = _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width)
-            k, _, _, _, c0, c1, c2, c3, c4, c5 = _box_moments(table, top, bottom, left, right)
+            top, bottom, left, right = _window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width)
+            k, mx, my, mz, c0, c1, c2, c3, c4, c5 = _box_moments(table, top, bottom, left, right)
             smallest_eigenvector(c0, c1, c2, c3, c4, c5, eigvals, normal)
-            valid = _valid_fit(table, r, c, top, bottom, left, right, k, eigvals, normal)
-            _finish_one(normal, eigvals, valid, normals, curvature, i)
+            valid = _valid_fit(counts, r, c, top, bottom, left, right, k, eigvals, normal)
+            ray_x, ray_y, ray_z = mx + offset[0], my + offset[1], mz + offset[2]
+            nx, ny, nz = _ray_noise(
+                c0, c1, c2, c3, c4, c5, ray_x, ray_y, ray_z, eigvals[2], normal[0], normal[1], normal[2]
+            )
+            _finish_one(nx, ny, nz, eigvals, valid, normals, curvature, i)
 
 
 def _empty_fit(n: int) -> dict[str, np.ndarray]:
@@ -415,39 +457,32 @@ def _nan_max(a, b):
     return max(a, b)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _box(table, top, bottom, left, right, k):
     """Channel k's sum over the inclusive box, from a 3-D summed-area table."""
     return table[bottom + 1, right + 1, k] - table[top, right + 1, k] - table[bottom + 1, left, k] + table[top, left, k]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _box2(table, top, bottom, left, right):
     """The sum over the inclusive box, from a 2-D summed-area table."""
     return table[bottom + 1, right + 1] - table[top, right + 1] - table[bottom + 1, left] + table[top, left]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _crossed(col_walls, row_walls, top, bottom, left, right):
-    """Whether a wall lies strictly inside the box (`image._WallTable.crossed`)."""
-    last_col = max(col_walls.shape[1] - 2, 0)
-    last_row = max(row_walls.shape[0] - 2, 0)
-    inner = 0.0
-    if right > left:
-        lo = min(max(left, 0), last_col)
-        hi = max(min(max(right - 1, 0), last_col), lo)
-        inner += _box2(col_walls, top, bottom, lo, hi)
-    if bottom > top:
-        lo = min(max(top, 0), last_row)
-        hi = max(min(max(bottom - 1, 0), last_row), lo)
-        inner += _box2(row_walls, lo, hi, left, right)
-    return inner > 0.5
+    """Whether a wall lies strictly inside the box (`image._WallTable.crossed`): one between two of its columns, else
+    one between two of its rows. The box lies inside the image (`_box_at` clips it), so the walls between its columns
+    are columns left..right - 1 of the column table, and its rows' likewise."""
+    if right > left and _box2(col_walls, top, bottom, left, right - 1) > 0.5:
+        return True
+    return bottom > top and _box2(row_walls, top, bottom - 1, left, right) > 0.5
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _box_at(r, c, half_row, half_col, up, down, left, right, level, height, width):
-    hr = (half_row * level + SHRINK_LEVELS // 2) // SHRINK_LEVELS
-    hc = (half_col * level + SHRINK_LEVELS // 2) // SHRINK_LEVELS
+    hr = (half_row * level + SHRINK_LEVELS // 2) >> _LEVEL_SHIFT
+    hc = (half_col * level + SHRINK_LEVELS // 2) >> _LEVEL_SHIFT
     return max(r - hr * up, 0), min(r + hr * down, height - 1), max(c - hc * left, 0), min(c + hc * right, width - 1)
 
 
@@ -470,7 +505,7 @@ def _largest_clear(r, c, half_row, half_col, up, down, left, right, col_walls, r
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width):
+def _window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width):
     """The pixel's window: the largest clear centred box, and where a wall cut it below half its reach, the fullest
     of it and the one-sided halves, then (where every half was cut too) the quarters (`_one_sided_where_shrunk`)."""
     top, bottom, left, right, level = _largest_clear(
@@ -479,7 +514,7 @@ def _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width
     if level >= SHRINK_LEVELS // 2:
         return top, bottom, left, right
     for first in (0, 4):
-        best = _box(table, top, bottom, left, right, 0)
+        best = _box2(counts, top, bottom, left, right)
         widest = 0
         for s in range(first, first + 4):
             t, b, lf, rt, lvl = _largest_clear(
@@ -487,7 +522,7 @@ def _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width
                 col_walls, row_walls, height, width,
             )  # fmt: skip
             widest = max(widest, lvl)
-            filled = _box(table, t, b, lf, rt, 0)
+            filled = _box2(counts, t, b, lf, rt)
             if filled > best:
                 best, top, bottom, left, right = filled, t, b, lf, rt
         if widest >= SHRINK_LEVELS // 2:
@@ -497,7 +532,7 @@ def _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _pixels(
-    table, points, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, radius, slope, changed,
+    table, counts, points, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, radius, slope, changed,
     normal, eigvals, count, valid, mean, cov, box, flat_reach, lo, hi,
 ):  # fmt: skip
     """Each pixel's window, its moments, PCA and validity (`MomentImage.pca` and `image._window_pca`); with a
@@ -520,13 +555,13 @@ def _pixels(
                 changed[i] = True
                 half_row, half_col = rows, cols
             flat_reach[i] = radius if np.isnan(reach[r, c]) else reach[r, c]
-            top, bottom, left, right = _window(r, c, half_row, half_col, table, col_walls, row_walls, height, width)
+            top, bottom, left, right = _window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width)
             box[0, i], box[1, i], box[2, i], box[3, i] = top, bottom, left, right
             k, mx, my, mz, c0, c1, c2, c3, c4, c5 = _box_moments(table, top, bottom, left, right)
             count[i], mean[i, 0], mean[i, 1], mean[i, 2] = k, mx, my, mz
             cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5] = c0, c1, c2, c3, c4, c5
             smallest_eigenvector(c0, c1, c2, c3, c4, c5, eigvals[i], normal[i])
-            valid[i] = _valid_fit(table, r, c, top, bottom, left, right, k, eigvals[i], normal[i])
+            valid[i] = _valid_fit(counts, r, c, top, bottom, left, right, k, eigvals[i], normal[i])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -604,14 +639,14 @@ def _box_moments(table, top, bottom, left, right):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _valid_fit(table, r, c, top, bottom, left, right, k, eigvals, normal):
+def _valid_fit(counts, r, c, top, bottom, left, right, k, eigvals, normal):
     """Whether pixel (r, c)'s window fit is valid (`image._window_pca`): enough points, not all on the pixel's row or
     column, a normal, and not collinear."""
     return (
         k >= MIN_NEIGHBOURS
         and np.isfinite(normal[0])
-        and _box(table, r, r, left, right, 0) < k
-        and _box(table, top, bottom, c, c, 0) < k
+        and _box2(counts, r, r, left, right) < k
+        and _box2(counts, top, bottom, c, c) < k
         and eigvals[1] > COLLINEAR_RATIO * eigvals[2]
     )
 

@@ -25,8 +25,8 @@ import numpy as np
 import torch
 
 from . import sides_numba
-from .image import MomentImage, WindowPCA, box_pca
-from .survey import PART_SPAN, ray_noise_normal
+from .image import MomentImage, WindowPCA, box_pca, ray_noise_normal
+from .survey import PART_SPAN
 
 #: A part replaces the answer only where the whole window's smallest eigenvalue exceeds this many times the part's
 #: score. Chosen on fold frames of seeds eval never scores (`docs/tools/sharp_folds_study.py`): 2 and 3 gave the same

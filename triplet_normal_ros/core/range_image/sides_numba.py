@@ -10,9 +10,8 @@ from numba import njit
 from ..bands import bands
 from ..pca.eigen_numba import smallest_eigenvector
 from . import image_numba
-from .image_numba import _SIDES, _box_moments, _halves, _largest_clear, _valid_fit
+from .image_numba import _SIDES, _box_moments, _halves, _largest_clear, _ray_noise, _valid_fit
 from .survey import PART_SPAN
-from .survey_numba import ray_noise_normal
 
 
 def snap_to_sides(
@@ -28,8 +27,8 @@ def snap_to_sides(
     per-column `pitch`, the cloud's (H·W, 3) `points`, at the flat `pixels`: float32 (M, 3)."""
     out = np.ascontiguousarray(answers, dtype=np.float64).copy()
     bands(
-        _snap, len(pixels), np.ascontiguousarray(pixels, dtype=np.int64), fit["table"], fit["offset"], fit["ranges"],
-        fit["reach_grid"], np.ascontiguousarray(pitch[0], dtype=np.float64),
+        _snap, len(pixels), np.ascontiguousarray(pixels, dtype=np.int64), fit["table"], fit["counts"], fit["offset"],
+        fit["ranges"], fit["reach_grid"], np.ascontiguousarray(pitch[0], dtype=np.float64),
         np.ascontiguousarray(pitch[1], dtype=np.float64), fit["col_walls"], fit["row_walls"], fit["eigvals"],
         np.ascontiguousarray(points, dtype=np.float64), float(sharper), float(cos_snap), int(PART_SPAN), out, pieces=4,
     )  # fmt: skip
@@ -38,11 +37,11 @@ def snap_to_sides(
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _snap(
-    pixels, table, offset, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, whole, points, sharper,
+    pixels, table, counts, offset, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, whole, points, sharper,
     cos_snap, part_span, out, lo, hi,
 ):  # fmt: skip
     height, width = ranges.shape
-    cov, eigvals, axis = np.empty(6), np.empty(3), np.empty(3)
+    eigvals, axis = np.empty(3), np.empty(3)
     for i in range(lo, hi):
         ax, ay, az = out[i, 0], out[i, 1], out[i, 2]
         if not (np.isfinite(ax) and np.isfinite(ay) and np.isfinite(az)):
@@ -60,13 +59,11 @@ def _snap(
             if bottom - top < part_span - 1 or right - left < part_span - 1:
                 continue
             k, mx, my, mz, c0, c1, c2, c3, c4, c5 = _box_moments(table, top, bottom, left, right)
-            cov[0], cov[1], cov[2], cov[3], cov[4], cov[5] = c0, c1, c2, c3, c4, c5
             smallest_eigenvector(c0, c1, c2, c3, c4, c5, eigvals, axis)
-            if not _valid_fit(table, r, c, top, bottom, left, right, k, eigvals, axis):
+            if not _valid_fit(counts, r, c, top, bottom, left, right, k, eigvals, axis):
                 continue
-            nx, ny, nz = ray_noise_normal(
-                cov, mx + offset[0], my + offset[1], mz + offset[2], eigvals[2], axis[0], axis[1], axis[2]
-            )
+            ray_x, ray_y, ray_z = mx + offset[0], my + offset[1], mz + offset[2]
+            nx, ny, nz = _ray_noise(c0, c1, c2, c3, c4, c5, ray_x, ray_y, ray_z, eigvals[2], axis[0], axis[1], axis[2])
             offside = (px - mx) * nx + (py - my) * ny + (pz - mz) * nz
             if not sharper * (eigvals[0] + offside * offside) < whole[p, 0]:
                 continue

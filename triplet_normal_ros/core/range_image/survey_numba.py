@@ -12,7 +12,7 @@ from numba import njit
 from ..bands import bands
 from ..config.conventions import MIN_NEIGHBOURS
 from . import image_numba
-from .image_numba import _box
+from .image_numba import _box, ray_noise_normal
 
 
 def survey(table: np.ndarray, offset: np.ndarray, fit: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
@@ -36,24 +36,6 @@ def _survey(first, offset, pca, eigvals, count, mean, cov, box, reach, normal, z
         normal[i, 0], normal[i, 1], normal[i, 2] = nx, ny, nz
         z[i], bend[i] = _parts(first, offset, box[0, i], box[1, i], box[2, i], box[3, i], count[i], reach[i],
                                mx - offset[0], my - offset[1], mz - offset[2], nx, ny, nz, cov[i])  # fmt: skip
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def ray_noise_normal(cov, mx, my, mz, largest, px, py, pz):
-    """`survey.ray_noise_normal` of one window: adj(C) · ray for the covariance's upper triangle `cov` (6,), the ray
-    toward the window's centroid (mx, my, mz) in the cloud's frame, and its `largest` eigenvalue; PCA's axis
-    (px, py, pz) where adj(C) · ray vanishes."""
-    a00, a01, a02, a11, a12, a22 = cov[0], cov[1], cov[2], cov[3], cov[4], cov[5]
-    length = max(math.sqrt(mx * mx + my * my + mz * mz), 1e-12)
-    rx, ry, rz = mx / length, my / length, mz / length
-    nx = (a11 * a22 - a12 * a12) * rx + (a02 * a12 - a01 * a22) * ry + (a01 * a12 - a02 * a11) * rz
-    ny = (a02 * a12 - a01 * a22) * rx + (a00 * a22 - a02 * a02) * ry + (a01 * a02 - a00 * a12) * rz
-    nz = (a01 * a12 - a02 * a11) * rx + (a01 * a02 - a00 * a12) * ry + (a00 * a11 - a01 * a01) * rz
-    size = math.sqrt(nx * nx + ny * ny + nz * nz)
-    if size > 1e-12 * largest * largest:
-        size = max(size, 1e-300)
-        return nx / size, ny / size, nz / size
-    return px, py, pz  # the noise model says nothing here: PCA's axis stands
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

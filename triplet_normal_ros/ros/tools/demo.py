@@ -3,9 +3,9 @@
 This process is the "camera": it starts the node as a separate process, publishes each full 640x480 frame best
 effort (as camera drivers do, through the shipped Fast DDS profile), waits for the answer and measures the round
 trip. The node first runs its default, ``hybrid`` (a window survey everywhere, the network near edges and folds), then,
-after a run-time parameter change, ``pca`` at its default k: PCA of each pixel's integral-image window over the same
-5 cm ball. Pictures go to ``out/normal_map.png`` and ``out/side_by_side.png``
-(labelled panels: camera image, hybrid, PCA, same frames, same radius).
+after a run-time parameter change, ``pca`` at its default k: the plane of each pixel's integral-image window over the
+same 5 cm ball (PCA's, with the camera's noise along the rays taken out). Pictures go to ``out/normal_map.png`` and
+``out/side_by_side.png`` (labelled panels: camera image, hybrid, PCA, same frames, same radius).
 """
 
 from __future__ import annotations
