@@ -73,7 +73,9 @@ def range_table(checkpoints: list[str], device: str, neighbours: str = "auto") -
         "| --- | --- | ---: | ---: | ---: | ---: |",
     ]
     for kind, spec in SETS.items():
-        pca = NormalEstimator("pca", radius=spec.radius, k=POOL_FACTOR * 128, device=device, neighbours=neighbours)
+        # At a whole-ball k, `auto` would answer PCA from the integral-image windows, not from the pool.
+        pools = "kdtree" if neighbours == "auto" else neighbours
+        pca = NormalEstimator("pca", radius=spec.radius, k=POOL_FACTOR * 128, device=device, neighbours=pools)
         estimators = {"PCA pool": pca}
         for ckpt in checkpoints:
             for method in ("learned", "hybrid"):

@@ -379,4 +379,4 @@ def test_the_default_recipe_is_the_shipped_checkpoints_scale_head_with_inlier_fi
     assert shipped["architecture"]["scales"] == recipe.scales
     assert shipped["architecture"]["inlier_seeds"] == recipe.inlier_seeds
     assert shipped["training"]["recipe"]["range_frames"] == recipe.range_frames
-    assert shipped["training"]["recipe"]["regressor_epochs"] == recipe.regressor_epochs == 40
+    assert shipped["training"]["recipe"]["regressor_epochs"] == recipe.regressor_epochs == 79

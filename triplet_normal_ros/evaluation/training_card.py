@@ -32,9 +32,9 @@ def markdown(names: tuple[str, ...] = SHIPPED) -> str:
     commands = [f"- `{name}`: `{command(name)}`" for name in names]
     return (
         f"Command: `{COMMAND}` (read from the shipped files; test_docs fails while this block and the files differ)\n\n"
-        "What each shipped checkpoint records of its training, on this 2-core CPU. *Validation loss*: the best on "
-        "the run's validation patches, in the run's own loss (the relative and the angle loss do not compare "
-        "across rows); *wall time*: the last run that wrote the file (a resumed run counts from its resume).\n\n"
+        "What each shipped checkpoint records of its training. *Validation loss*: the best on the run's validation "
+        "patches, in the run's own loss (the relative and the angle loss do not compare across rows); *wall time*: "
+        "the last run that wrote the file, on the device it records (a resumed run counts from its resume).\n\n"
         + HEADER
         + "\n"
         + "\n".join(rows)
@@ -71,16 +71,19 @@ def row(name: str) -> str:
         data(recipe),
         epochs,
         f"{training['final_val_normal_loss']:.5f}",
-        f"{training['wall_seconds'] / 60:.1f} min",
+        f"{training['wall_seconds'] / 60:.1f} min ({training.get('device', 'device not recorded')})",
     )
     return "| " + " | ".join(cells) + " |"
 
 
 def loss(recipe: dict[str, Any]) -> str:
-    """The regressor's loss, with the scale head's candidates where it has one."""
-    name = {"relative": f"relative squared angle (floor {recipe.get('relative_floor_deg', 0):g}°)"}.get(
-        recipe["loss"], "squared angle"
-    )
+    """The regressor's loss (`training.losses`), with the scale head's candidates where it has one."""
+    names = {
+        "relative": f"relative squared angle (floor {recipe.get('relative_floor_deg', 0):g}°)",
+        "angle": "squared angle",
+        "cos": f"the paper's weighted 1 - cos^{recipe.get('exponent', 8)}",
+    }
+    name = names.get(recipe["loss"], recipe["loss"])
     if recipe.get("scales"):
         name += f", scale head over fits of {', '.join(map(str, recipe['scales']))} points"
     return name
