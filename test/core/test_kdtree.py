@@ -123,11 +123,14 @@ def test_a_bound_too_tight_to_hold_k_points_is_searched_again_with_the_ball() ->
     tree = KDTree(points)
     scratch = scratch_for(20)
     x, y, z = points[5]
-    scratch.last[:] = (x, y, z, 0.0)  # as if the previous centre sat here with all its k points at distance 0
-    count = _nearest_one(tree.points, tree.ids, tree.span, tree.box, tree.depth, x, y, z, 0.3**2, 20, scratch)
-    assert count == 20
-    found = tree.ids[scratch.best_pos[:count]]
-    np.testing.assert_array_equal(found, _brute_force(points, points[5:6], 0.3, 20)[0])
+    # each search as if the previous centre sat here with all its k points at distance 0
+    expected = _brute_force(points, points[5:6], 0.3, 20)[0]
+    own = tree.leaf[tree.position[5]]
+    for start in (own, (1 << tree.depth) - 1, -1):  # from its own leaf up, from another leaf up, from the root down
+        scratch.last[:] = (x, y, z, 0.0)
+        count = _nearest_one(tree.columns, tree.ids, tree.span, tree.box, tree.depth, start, x, y, z, 0.09, 20, scratch)
+        assert count == 20
+        np.testing.assert_array_equal(tree.ids[scratch.best_pos[:count]], expected)
 
 
 def test_neighbour_index_maps_a_cloud_with_holes_back_to_its_rows() -> None:

@@ -64,16 +64,16 @@ def tree_normals(
     m = len(centres)
     normal, eigvals, valid = np.full((m, 3), np.nan), np.full((m, 3), np.nan), np.zeros(m, dtype=np.bool_)
     if tree.size and m and k > 0:
-        coordinates, at, which = tree.in_leaf_order(centres, rows)
+        coordinates, at, which, starts = tree.in_leaf_order(centres, rows)
         bands(
-            _tree_pca, m, tree.points, tree.ids, tree.span, tree.box, tree.depth, coordinates, at, which,
-            float(radius) ** 2, int(k), float(gap), normal, eigvals, valid, pieces=4,
+            _tree_pca, m, tree.columns, tree.ids, tree.span, tree.box, tree.depth, coordinates, at, which,
+            starts, float(radius) ** 2, int(k), float(gap), normal, eigvals, valid, pieces=4,
         )  # fmt: skip
     return normal, eigvals, valid
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _tree_pca(pts, ids, span, box, depth, centres, at, which, r2, k, gap, normal, eigvals, valid, lo, hi):
+def _tree_pca(cols, ids, span, box, depth, centres, at, which, starts, r2, k, gap, normal, eigvals, valid, lo, hi):
     """`_pool_pca` of each query's nearest k (`kdtree._nearest_one`), its moments summed from the tree's own points
     while the search has them in cache, for the queries at[lo:hi] into the rows which[lo:hi]."""
     scratch = scratch_for(k)
@@ -82,13 +82,13 @@ def _tree_pca(pts, ids, span, box, depth, centres, at, which, r2, k, gap, normal
     for j in range(lo, hi):
         c, q = at[j], which[j]
         x, y, z = centres[c, 0], centres[c, 1], centres[c, 2]
-        count = _nearest_one(pts, ids, span, box, depth, x, y, z, r2, k, scratch)
+        count = _nearest_one(cols, ids, span, box, depth, starts[j], x, y, z, r2, k, scratch)
         if count == 0:
             continue
         sums[:] = 0.0
         for a in range(count):
             t = scratch.best_pos[a]
-            add_moments(sums, pts[t, 0] - x, pts[t, 1] - y, pts[t, 2] - z)
+            add_moments(sums, cols[0, t] - x, cols[1, t] - y, cols[2, t] - z)
         valid[q] = moments_pca(sums, gap, cov, eigvals[q], normal[q])
 
 
