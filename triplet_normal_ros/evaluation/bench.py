@@ -143,8 +143,8 @@ def bench_one(
     cloud_s = fixed + per_query * (len(valid) - FIXED_QUERIES)
     if options["method"] == "pca" and info.search == "window":
         cloud_s = wall  # the integral image answers every pixel whatever the query: one call costs the whole cloud
-    elif info.search == "window":
-        cloud_s = _whole_frame_seconds(estimator, points, shape)
+    elif info.search == "window" or options["method"] == "pca":
+        cloud_s = _whole_cloud_seconds(estimator, points, shape)
     row = Row(
         cloud,
         label,
@@ -164,10 +164,12 @@ def bench_one(
     return row
 
 
-def _whole_frame_seconds(estimator, points: np.ndarray, shape) -> float:
-    """One estimate of every point: hybrid's time on a range image. Its network runs on a lattice of the gated pixels,
-    whose passes a sparse query pays for each pixel it asks for (up to five) and a whole frame shares, so no query
-    subset extrapolates to a frame."""
+def _whole_cloud_seconds(estimator, points: np.ndarray, shape) -> float:
+    """One estimate of every point, where no query subset extrapolates to the whole cloud. Hybrid on a range image
+    runs its network on a lattice of the gated pixels, whose passes a sparse query pays for each pixel it asks for (up
+    to five) and a whole frame shares. Pool PCA over a whole cloud searches in the KD-tree's leaf order, each query's
+    bound seeded by the one before (`kdtree_numba`), which scattered queries cannot use; it is cheap enough to time
+    whole, as the anchors are."""
     start = time.perf_counter()
     estimator.estimate(points, shape=shape)
     return time.perf_counter() - start
@@ -351,10 +353,11 @@ def markdown(rows, searches, gflops, net, conversions, command: str, memory=()) 
         "Every method times the same fixed-seed query subset with neighbourhoods from the whole cloud; *neighbours* "
         "includes building the search once per cloud; *s per cloud* = the per-cloud cost (measured by a 16-query run: "
         "building the search, moving the cloud) + the per-query cost × every valid point; *× PCA-30* is that time over "
-        "PCA at k = 30 on the same cloud in this run. On an organized frame the window paths' *s per cloud* is one "
-        "estimate of the whole frame: `pca` answers every pixel at once, and hybrid's network runs on a lattice of the "
-        "gated pixels, whose passes a sparse query pays for each pixel it asks for (up to five) and a whole frame "
-        "shares.",
+        "PCA at k = 30 on the same cloud in this run. For `pca` and for the window paths *s per cloud* is one "
+        "estimate of the whole cloud instead, as for the anchors: the window `pca` answers every pixel at once; "
+        "hybrid's network runs on a lattice of the gated pixels, whose passes a sparse query pays for each pixel it "
+        "asks for (up to five) and a whole frame shares; and pool PCA searches a whole cloud in the KD-tree's leaf "
+        "order, each query's bound seeded by the one before, which scattered queries cannot use.",
         "",
         "| cloud | method | path | timed | neighbours pts/s | pca | gate | patches | network | network share "
         "| total pts/s | s per cloud | × PCA-30 |",
