@@ -7,12 +7,14 @@ search and the pool PCA in one loop, equal to `pool_normals` over the same pools
 
 import numpy as np
 import pytest
+import torch
 from scipy.spatial import cKDTree
 
 from triplet_normal_ros.core.pca.eigen import EIGEN_GAP
 from triplet_normal_ros.core.pca.pools_numba import pool_normals, tree_normals
 from triplet_normal_ros.core.search.kdtree_numba import LEAF_SIZE, KDTree, _nearest_one, scratch_for
 from triplet_normal_ros.core.search.neighbours import NeighbourIndex
+from triplet_normal_ros.core.search.pools import ScanLines
 from triplet_normal_ros.simulation.depth_camera import depth_frame
 
 
@@ -162,3 +164,22 @@ def test_tree_normals_equal_pool_normals_over_the_same_pools(k: int) -> None:
 def test_tree_normals_of_an_empty_tree_are_nan() -> None:
     normal, eigvals, valid = tree_normals(KDTree(np.empty((0, 3))), np.zeros((2, 3)), None, 1.0, 5, EIGEN_GAP)
     assert np.isnan(normal).all() and np.isnan(eigvals).all() and not valid.any()
+
+
+@pytest.mark.parametrize("k", [4, 30])
+def test_tree_normals_with_the_image_width_refuse_the_pools_scan_lines_refuses(k: int) -> None:
+    # A LiDAR-like image: 8 rows 2 cm apart in its left half (pools span rows) and 20 cm apart in its right half
+    # (pools of one row only); every 5th pixel of a row missing, so some short pools count their centre's pixel.
+    height, width = 8, 60
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    rise = np.where(u < width // 2, 0.02, 0.2) * v
+    frame = np.stack((0.01 * u, np.full_like(u, 2.0) + 0.001 * u * u, rise), axis=-1).reshape(-1, 3)
+    frame[::5] = np.nan
+    index = NeighbourIndex(frame)
+    rows = np.flatnonzero(np.isfinite(frame).all(axis=1))
+    plain = index.pool_normals(rows, 0.05, k, EIGEN_GAP)
+    lined = index.pool_normals(rows, 0.05, k, EIGEN_GAP, width)
+    pools = torch.from_numpy(index.nearest(frame[rows], 0.05, k, rows))
+    single = ScanLines((height, width), torch.device("cpu")).single(pools, torch.from_numpy(rows)).numpy()
+    assert (single & plain[2]).any() and (~single & plain[2]).any()  # both kinds of valid pool occur
+    np.testing.assert_array_equal(lined[2], plain[2] & ~single)

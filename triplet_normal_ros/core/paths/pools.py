@@ -57,9 +57,9 @@ def over_pools(
     chunk's pools, NaN where an organized cloud's pool lies on one scan line (`lines`); raises EstimationCancelled
     between chunks once the call is cancelled. `learned` and `hybrid` also get the plane of the whole ball
     (`pool_and_ball`), where that is larger than the network's pool. `pca` over the KD-tree on a CPU searches and
-    sums in one loop (`tree_pca`) and stores no pools."""
+    sums in one loop (`tree_pca`), the scan-line test too, and stores no pools."""
     s = call.settings
-    fused = kernel is pca_kernel and lines is None and search.name == "kdtree" and call.compiled
+    fused = kernel is pca_kernel and search.name == "kdtree" and call.compiled
     whole_ball = kernel in (hybrid_kernel, learned_kernel) and call.ball_size() > call.pool_size()
     chunk = max(chunk, TREE_PCA_CHUNK) if fused else chunk
     for radius, group in radius_groups(s.radius, s.range_scale, cloud, query, todo):
@@ -67,7 +67,7 @@ def over_pools(
             call.check_cancel()
             out = group[lo : lo + chunk]
             if fused:
-                yield out, *tree_pca(call, search, query[out], radius)
+                yield out, *tree_pca(call, search, query[out], radius, lines.width if lines is not None else 0)
                 continue
             rows = torch.from_numpy(query[out]).to(call.device)
             if whole_ball:
@@ -101,12 +101,15 @@ def pca_kernel(call: Call, cloud, centres, pool, rows, _radius, _ball=None) -> t
         return finish(normal, surface_variation(eigvals), valid & spans_plane(eigvals))
 
 
-def tree_pca(call: Call, search: PoolSearch, rows: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+def tree_pca(
+    call: Call, search: PoolSearch, rows: np.ndarray, radius: float, width: int
+) -> tuple[np.ndarray, np.ndarray]:
     """`pca_kernel` over the KD-tree's pools around cloud `rows` on a CPU, the search and the PCA in one compiled loop
-    per point (`pools_numba.tree_normals`): the same answers without storing the pools. The loop is timed as
-    "neighbours", the curvature and the validity after it as "pca"."""
+    per point (`pools_numba.tree_normals`), with an organized cloud's `width` the scan-line test as well (0: none):
+    the same answers without storing the pools. The loop is timed as "neighbours", the curvature and the validity
+    after it as "pca"."""
     with call.timed("neighbours"):
-        normal, eigvals, valid = search.index.pool_normals(rows, radius, call.pool_size(), EIGEN_GAP)
+        normal, eigvals, valid = search.index.pool_normals(rows, radius, call.pool_size(), EIGEN_GAP, width)
     with call.timed("pca"):
         eigvals = torch.from_numpy(eigvals)
         valid = torch.from_numpy(valid) & spans_plane(eigvals)

@@ -56,26 +56,31 @@ def _pool_pca(cloud, pool, rows, gap, normal, eigvals, valid, lo, hi):
 
 
 def tree_normals(
-    tree: KDTree, centres: np.ndarray, rows: np.ndarray | None, radius: float, k: int, gap: float
+    tree: KDTree, centres: np.ndarray, rows: np.ndarray | None, radius: float, k: int, gap: float, width: int = 0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`pool_normals` of the nearest `k` points inside the ball around each centre, searched and summed in one loop
     per point (`KDTree.nearest`'s search; `rows` as there): the pools are never stored, and their points are summed
-    while the search has them in cache."""
+    while the search has them in cache. With the `width` of an organized cloud whose rows of `width` pixels the
+    tree's ids are, a pool within one image row or one image column is not valid (`search.pools.ScanLines.single`:
+    one scan line, collinear whatever its noise says)."""
     m = len(centres)
     normal, eigvals, valid = np.full((m, 3), np.nan), np.full((m, 3), np.nan), np.zeros(m, dtype=np.bool_)
     if tree.size and m and k > 0:
         coordinates, at, which, starts = tree.in_leaf_order(centres, rows)
         bands(
             _tree_pca, m, tree.columns, tree.ids, tree.span, tree.box, tree.depth, coordinates, at, which,
-            starts, float(radius) ** 2, int(k), float(gap), normal, eigvals, valid, pieces=4,
+            starts, float(radius) ** 2, int(k), float(gap), int(width), normal, eigvals, valid, pieces=4,
         )  # fmt: skip
     return normal, eigvals, valid
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _tree_pca(cols, ids, span, box, depth, centres, at, which, starts, r2, k, gap, normal, eigvals, valid, lo, hi):
+def _tree_pca(
+    cols, ids, span, box, depth, centres, at, which, starts, r2, k, gap, width, normal, eigvals, valid, lo, hi
+):  # fmt: skip
     """`_pool_pca` of each query's nearest k (`kdtree._nearest_one`), its moments summed from the tree's own points
-    while the search has them in cache, for the queries at[lo:hi] into the rows which[lo:hi]."""
+    while the search has them in cache, for the queries at[lo:hi] into the rows which[lo:hi]; with a `width`, not
+    valid where the pool lies on one scan line (`_one_line`)."""
     scratch = scratch_for(k)
     cov = np.empty((3, 3))
     sums = np.empty(10)
@@ -90,6 +95,25 @@ def _tree_pca(cols, ids, span, box, depth, centres, at, which, starts, r2, k, ga
             t = scratch.best_pos[a]
             add_moments(sums, cols[0, t] - x, cols[1, t] - y, cols[2, t] - z)
         valid[q] = moments_pca(sums, gap, cov, eigvals[q], normal[q])
+        if width > 0 and valid[q]:
+            centre = ids[c] if c < len(ids) and count < k else -1
+            valid[q] = not _one_line(ids, scratch.best_pos, count, centre, width)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _one_line(ids, places, count, centre, width):
+    """Whether the pool ids[places[:count]] (and the `centre` pixel, where it is not -1: `ScanLines.single` counts a
+    short pool's padding as the centre) lies within one image row or one image column of an image `width` pixels
+    wide. Most pools leave both lines within their first few points, so the loop stops there."""
+    row0, col0 = divmod(ids[places[0]], width)
+    same_row = same_col = True
+    for a in range(1, count + (centre >= 0)):
+        row, col = divmod(ids[places[a]] if a < count else centre, width)
+        same_row = same_row and row == row0
+        same_col = same_col and col == col0
+        if not (same_row or same_col):
+            return False
+    return True
 
 
 def warm() -> None:
@@ -99,4 +123,4 @@ def warm() -> None:
     cloud = np.stack((u, v, np.ones_like(u) + 0.1 * u * v), axis=-1).reshape(-1, 3)
     pool = np.arange(16, dtype=np.int64).reshape(2, 8)
     pool_normals(cloud, pool, np.arange(2), 1e-3)
-    tree_normals(KDTree(cloud), cloud[:2], np.arange(2), 3.0, 8, 1e-3)
+    tree_normals(KDTree(cloud), cloud[:2], np.arange(2), 3.0, 8, 1e-3, width=4)

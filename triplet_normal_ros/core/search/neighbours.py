@@ -54,13 +54,14 @@ class NeighbourIndex:
         )
 
     def pool_normals(
-        self, rows: np.ndarray, radius: float, max_nn: int, gap: float
+        self, rows: np.ndarray, radius: float, max_nn: int, gap: float, width: int = 0
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """`pools.pool_normals` of the pools `nearest` gives around the cloud's `rows`, searched and summed in one
         compiled loop (`pools_numba.tree_normals`): unit normals, ascending eigenvalues and validity, NaN where
-        the row is not finite."""
+        the row is not finite; with the `width` of an organized cloud, not valid where a pool lies on one scan
+        line."""
         rows = np.asarray(rows, dtype=np.int64)
-        return tree_normals(self._tree, self.points[rows], self._tree_row[rows], radius, max_nn, gap)
+        return tree_normals(self._tree, self.points[rows], self._tree_row[rows], radius, max_nn, gap, width)
 
     def _nearest(self, centres: np.ndarray, radius: float, max_nn: int, rows: np.ndarray | None) -> np.ndarray:
         """One chunk of `nearest`: the cloud's rows become the tree's (-1 where not finite, so not the tree's)."""

@@ -84,6 +84,7 @@ class ScanLines:
 
     def __init__(self, shape: tuple[int, int], device: torch.device) -> None:
         height, width = shape
+        self.width = width
         kind = torch.int16 if max(height, width) < 2**15 else torch.int32
         self.row = torch.arange(height, device=device, dtype=kind).repeat_interleave(width)
         self.col = torch.arange(width, device=device, dtype=kind).repeat(height)
