@@ -42,6 +42,8 @@ def _clouds() -> dict[str, np.ndarray]:
         "duplicates": np.repeat(rng.uniform(0, 1, size=(300, 3)), 4, axis=0),
         "one point": np.array([[0.5, 0.5, 0.5]]),
         "under a leaf": rng.uniform(size=(LEAF_SIZE - 3, 3)),
+        "one full leaf": rng.uniform(size=(LEAF_SIZE, 3)),
+        "a point over a leaf": rng.uniform(size=(LEAF_SIZE + 1, 3)),
     }
 
 
@@ -50,8 +52,12 @@ def _clouds() -> dict[str, np.ndarray]:
 def test_answers_equal_a_brute_force(name: str, radius: float, k: int) -> None:
     points = _clouds()[name]
     rng = np.random.default_rng(1)
-    centres = np.concatenate([points[rng.choice(len(points), size=min(60, len(points)))], rng.uniform(-1, 1, (20, 3))])
-    np.testing.assert_array_equal(KDTree(points).nearest(centres, radius, k), _brute_force(points, centres, radius, k))
+    own = rng.choice(len(points), size=min(60, len(points)))
+    centres = np.concatenate([points[own], rng.uniform(-1, 1, (20, 3))])
+    tree, expected = KDTree(points), _brute_force(points, centres, radius, k)
+    np.testing.assert_array_equal(tree.nearest(centres, radius, k), expected)  # every search from the root
+    rows = np.concatenate([own, np.full(20, -1)])  # the tree's own points start at their leaves
+    np.testing.assert_array_equal(tree.nearest(centres, radius, k, rows), expected)
 
 
 def test_a_depth_frame_gives_scipys_distances_and_sets() -> None:
@@ -64,6 +70,16 @@ def test_a_depth_frame_gives_scipys_distances_and_sets() -> None:
     np.testing.assert_array_equal(np.sort(found, axis=1), np.sort(expected, axis=1))  # no ties here: the same sets
     mine = np.where(found >= 0, np.linalg.norm(points[found] - points[:, None], axis=-1), np.inf)
     np.testing.assert_allclose(mine, distance, rtol=1e-12)  # in the same order
+
+
+@pytest.mark.parametrize("n", [1, LEAF_SIZE - 1, LEAF_SIZE, LEAF_SIZE + 1, 2 * LEAF_SIZE, 2 * LEAF_SIZE + 1, 4097])
+def test_leaves_hold_half_a_leaf_to_a_full_leaf_in_the_fewest_levels(n: int) -> None:
+    tree = KDTree(np.random.default_rng(n).uniform(size=(n, 3)))
+    first = (1 << tree.depth) - 1
+    sizes = tree.span[first:, 1] - tree.span[first:, 0]
+    assert sizes.max() == tree.leaf_size <= LEAF_SIZE and sizes.sum() == n
+    assert sizes.min() >= min(n, LEAF_SIZE // 2) and (tree.depth == 0 or n > LEAF_SIZE << (tree.depth - 1))
+    np.testing.assert_array_equal(tree.leaf, np.repeat(np.arange(first, first + len(sizes)), sizes))
 
 
 def test_the_ball_is_strict_and_the_padding_is_minus_one() -> None:
@@ -123,7 +139,7 @@ def test_far_jumps_between_consecutive_centres_keep_the_answers_exact() -> None:
 def test_a_bound_too_tight_to_hold_k_points_is_searched_again_with_the_ball() -> None:
     points = _clouds()["uniform"]
     tree = KDTree(points)
-    scratch = scratch_for(20)
+    scratch = scratch_for(20, tree.leaf_size)
     x, y, z = points[5]
     # each search as if the previous centre sat here with all its k points at distance 0
     expected = _brute_force(points, points[5:6], 0.3, 20)[0]
@@ -169,7 +185,7 @@ def test_tree_normals_of_an_empty_tree_are_nan() -> None:
 @pytest.mark.parametrize("k", [4, 30])
 def test_tree_normals_with_the_image_width_refuse_the_pools_scan_lines_refuses(k: int) -> None:
     # A LiDAR-like image: 8 rows 2 cm apart in its left half (pools span rows) and 20 cm apart in its right half
-    # (pools of one row only); every 5th pixel of a row missing, so some short pools count their centre's pixel.
+    # (pools of one row only), every 5th pixel missing.
     height, width = 8, 60
     v, u = np.mgrid[0:height, 0:width].astype(np.float64)
     rise = np.where(u < width // 2, 0.02, 0.2) * v

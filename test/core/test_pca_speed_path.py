@@ -157,3 +157,25 @@ def test_nearest_shapes_at_the_edges(monkeypatch: pytest.MonkeyPatch) -> None:
     whole = chunked.nearest(many, 0.2, 16)
     monkeypatch.setattr(neighbours, "_CHUNK_ENTRIES", 16 * 7)  # chunks of 7 centres
     np.testing.assert_array_equal(chunked.nearest(many, 0.2, 16), whole)
+
+
+def test_organized_pca_answers_as_unorganized_except_where_a_pool_lies_on_one_scan_line() -> None:
+    # A 32-beam scan at a 0.25 m ball: where the rings lie far apart a point's nearest 16 are on its own ring.
+    from triplet_normal_ros.core.search.pools import ScanLines
+    from triplet_normal_ros.simulation.lidar import lidar_scan
+
+    scan = lidar_scan(0, azimuth_step_deg=0.8)
+    points, shape = scan.points.reshape(-1, 3).astype(np.float64), scan.points.shape[:2]
+    estimator = NormalEstimator("pca", radius=0.25, k=16, neighbours="kdtree", device="cpu")
+    organized, _ = estimator.estimate(points, shape=shape)
+    assert estimator.last_run.plan.scan_lines  # the grid was trusted: the scan-line test ran
+    flat, _ = estimator.estimate(points)
+    rows = np.flatnonzero(np.isfinite(points).all(axis=1))
+    pools = torch.from_numpy(NeighbourIndex(points).nearest(points[rows], 0.25, 16, rows))
+    single = np.zeros(len(points), dtype=bool)
+    single[rows] = ScanLines(shape, torch.device("cpu")).single(pools, torch.from_numpy(rows)).numpy()
+    answered = ~np.isnan(flat).any(axis=1)
+    assert (single & answered).sum() > 100 and (~single & answered).sum() > 100
+    np.testing.assert_array_equal(np.isnan(organized).any(axis=1), ~answered | single)
+    keep = answered & ~single
+    np.testing.assert_array_equal(organized[keep], flat[keep])

@@ -68,20 +68,21 @@ def tree_normals(
     if tree.size and m and k > 0:
         coordinates, at, which, starts = tree.in_leaf_order(centres, rows)
         bands(
-            _tree_pca, m, tree.columns, tree.ids, tree.span, tree.box, tree.depth, coordinates, at, which,
-            starts, float(radius) ** 2, int(k), float(gap), int(width), normal, eigvals, valid, pieces=4,
+            _tree_pca, m, tree.columns, tree.ids, tree.span, tree.box, tree.depth, tree.leaf_size, coordinates,
+            at, which, starts, float(radius) ** 2, int(k), float(gap), int(width), normal, eigvals, valid, pieces=4,
         )  # fmt: skip
     return normal, eigvals, valid
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _tree_pca(
-    cols, ids, span, box, depth, centres, at, which, starts, r2, k, gap, width, normal, eigvals, valid, lo, hi
+    cols, ids, span, box, depth, leaf_size, centres, at, which, starts, r2, k, gap, width, normal, eigvals, valid,
+    lo, hi,
 ):  # fmt: skip
     """`_pool_pca` of each query's nearest k (`kdtree._nearest_one`), its moments summed from the tree's own points
     while the search has them in cache, for the queries at[lo:hi] into the rows which[lo:hi]; with a `width`, not
     valid where the pool lies on one scan line (`_one_line`)."""
-    scratch = scratch_for(k)
+    scratch = scratch_for(k, leaf_size)
     cov = np.empty((3, 3))
     sums = np.empty(10)
     for j in range(lo, hi):
@@ -96,19 +97,19 @@ def _tree_pca(
             add_moments(sums, cols[0, t] - x, cols[1, t] - y, cols[2, t] - z)
         valid[q] = moments_pca(sums, gap, cov, eigvals[q], normal[q])
         if width > 0 and valid[q]:
-            centre = ids[c] if c < len(ids) and count < k else -1
-            valid[q] = not _one_line(ids, scratch.best_pos, count, centre, width)
+            valid[q] = not _one_line(ids, scratch.best_pos, count, width)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _one_line(ids, places, count, centre, width):
-    """Whether the pool ids[places[:count]] (and the `centre` pixel, where it is not -1: `ScanLines.single` counts a
-    short pool's padding as the centre) lies within one image row or one image column of an image `width` pixels
-    wide. Most pools leave both lines within their first few points, so the loop stops there."""
+def _one_line(ids, places, count, width):
+    """Whether the pool ids[places[:count]] lies within one image row or one image column of an image `width` pixels
+    wide. `ScanLines.single` also counts a short pool's padding as the centre's pixel, which changes nothing here: a
+    pool of fewer than k points holds every point of the ball, its centre among them. Most pools leave both lines
+    within their first few points, so the loop stops there."""
     row0, col0 = divmod(ids[places[0]], width)
     same_row = same_col = True
-    for a in range(1, count + (centre >= 0)):
-        row, col = divmod(ids[places[a]] if a < count else centre, width)
+    for a in range(1, count):
+        row, col = divmod(ids[places[a]], width)
         same_row = same_row and row == row0
         same_col = same_col and col == col0
         if not (same_row or same_col):

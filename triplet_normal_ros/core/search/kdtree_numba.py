@@ -49,14 +49,15 @@ class Scratch(NamedTuple):
     stack: np.ndarray  # nodes still to visit
     stack_bound: np.ndarray  # their boxes' squared distances
     last: np.ndarray  # the previous centre and its k-th distance (-1: none)
-    leaf_distance: np.ndarray  # (LEAF_SIZE,) the squared distances of the leaf being scanned
+    leaf_distance: np.ndarray  # (the tree's largest leaf,) the squared distances of the leaf being scanned
 
 
 @njit(cache=True, nogil=True)
-def scratch_for(k):
-    """A `Scratch` for searches of k points."""
+def scratch_for(k, leaf_size):
+    """A `Scratch` for searches of k points in a tree whose largest leaf holds `leaf_size` points (`KDTree.leaf_size`:
+    the tree's own figure, so compiled code cached before a change of LEAF_SIZE still sizes its buffer right)."""
     return Scratch(np.empty(k + 1), np.empty(k + 1, dtype=np.int64), np.empty(_STACK, dtype=np.int64),
-                   np.empty(_STACK), np.array([0.0, 0.0, 0.0, -1.0]), np.empty(LEAF_SIZE))  # fmt: skip
+                   np.empty(_STACK), np.array([0.0, 0.0, 0.0, -1.0]), np.empty(max(leaf_size, 1)))  # fmt: skip
 
 
 class KDTree:
@@ -69,8 +70,10 @@ class KDTree:
         n = len(points)
         ids = np.arange(n, dtype=np.int64) if ids is None else np.asarray(ids, dtype=np.int64)
         self.size = n
-        self.depth = max(0, math.ceil(math.log2(n / LEAF_SIZE))) if n else 0
+        self.depth = (-(-n // LEAF_SIZE) - 1).bit_length() if n else 0  # the fewest levels with leaves of <= LEAF_SIZE
         self.points, order, self.span, self.box = _build(points, self.depth)
+        first = (1 << self.depth) - 1
+        self.leaf_size = int((self.span[first:, 1] - self.span[first:, 0]).max())
         self.columns = np.ascontiguousarray(self.points.T)  # (3, N): the leaf scan's vector loop reads these
         self.leaf = _leaf_of(self.span, self.depth)
         self.ids = ids[order]
@@ -87,8 +90,8 @@ class KDTree:
         if self.size and len(centres) and k > 0:
             centres, at, which, starts = self.in_leaf_order(centres, rows)
             bands(
-                _query, len(at), self.columns, self.ids, self.span, self.box, self.depth, centres, at, which, starts,
-                float(radius) ** 2, out, pieces=4,
+                _query, len(at), self.columns, self.ids, self.span, self.box, self.depth, self.leaf_size, centres, at,
+                which, starts, float(radius) ** 2, out, pieces=4,
             )  # fmt: skip
         return out
 
@@ -224,11 +227,11 @@ def _box_distance(box, node, x, y, z):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _query(cols, ids, span, box, depth, centres, at, which, starts, r2, out, lo, hi):
+def _query(cols, ids, span, box, depth, leaf_size, centres, at, which, starts, r2, out, lo, hi):
     """The sorted nearest out.shape[1] ids strictly inside squared radius `r2` of centres[at[lo:hi]], into the rows
     which[lo:hi] of `out` (pre-filled with -1), each search from the leaf in starts[lo:hi] (-1: the root)."""
     k = out.shape[1]
-    scratch = scratch_for(k)
+    scratch = scratch_for(k, leaf_size)
     for j in range(lo, hi):
         c = at[j]
         x, y, z = centres[c, 0], centres[c, 1], centres[c, 2]
