@@ -7,9 +7,11 @@ plane (`image.ray_noise_normal`: adj(C) · ray) is the plane whatever the noise 
 noise-free window. A ball search bounds the noise another way: a point displaced along its ray past the radius leaves
 the ball.
 
-Rows: the window's smallest axis, the window's ray-noise plane, and PCA over the ball (the unorganized `pca`, the
-whole ball up to its cap), on simulated depth, fold and LiDAR frames of seeds 100 and up, at eval's radii. MSAE
-(rad², sign-invariant, a missing normal scored as 90°) at 8000 valid pixels per frame, overall and near edges.
+Rows: the window's smallest axis, the window's ray-noise plane, the ray-noise plane of windows of at most about
+256, 500 and 1000 pixels (`MomentImage.pca`'s `pixels`: the window's angular radius capped where the ball would hold
+more), and PCA over the ball (the unorganized `pca`, the nearest 500 points in the ball), on simulated depth, fold and
+LiDAR frames of seeds 100 and up, at eval's radii. MSAE (rad², sign-invariant, a missing normal scored as 90°) at 8000
+valid pixels per frame, overall and near edges.
 
     .venv/bin/python docs/tools/window_fit_study.py [--seed 100]
 """
@@ -29,6 +31,8 @@ from triplet_normal_ros.evaluation.range_eval import SETS, _near_edge
 from triplet_normal_ros.simulation import range_scans
 
 FRAMES = {"depth": 3, "fold": 6, "lidar": 3}
+#: Window sizes in pixels at most (`MomentImage.pca`'s `pixels`): the default k's pool, and half and twice it.
+CAPS = (256, 500, 1000)
 QUERIES = 8000
 
 
@@ -68,6 +72,11 @@ def _score(kind: str, frame) -> dict[str, tuple[float, float]]:
         "window, ray-noise plane": ray_noise_normal(fit).numpy(),
     }
     planes = {name: np.where(answered[:, None], normal, np.nan)[query] for name, normal in planes.items()}
+    image = MomentImage(cloud, shape, range_pitch(cloud, shape))
+    for pixels in CAPS:
+        capped = image.pca(spec.radius, spec.range_scale, pixels)
+        normal = np.where(capped.valid.numpy()[:, None], ray_noise_normal(capped).numpy(), np.nan)
+        planes[f"window of at most about {pixels} pixels, ray-noise plane"] = normal[query]
     ball = NormalEstimator("pca", radius=spec.radius, range_scale=spec.range_scale, device="cpu")
     planes["ball PCA (unorganized)"] = ball.estimate(points, query)[0]
     scores = {}

@@ -14,6 +14,7 @@ from triplet_normal_ros.core.config.device import device_type
 from triplet_normal_ros.core.config.plan import checkpoint_for
 from triplet_normal_ros.core.config.settings import Settings
 from triplet_normal_ros.evaluation.metrics import rmse_deg
+from triplet_normal_ros.evaluation.range_eval import PCA_WINDOW
 from triplet_normal_ros.evaluation.report import read_section, update_section
 from triplet_normal_ros.io.cloud_files import read_cloud, read_normals_file
 
@@ -224,7 +225,7 @@ def test_eval_default_sets_skip_pcpnet_without_its_data(tmp_path: Path) -> None:
         assert rows["learned"]["network share"] == "100.0%" and rows["PCA, k = 30"]["network share"] == "-"
         ball = rows["hybrid, lite, ball survey"]["network share"]  # each hybrid also runs with the ball survey
         assert ball.endswith("%") and 0 <= float(ball[:-1]) < 100
-        answered = rows["PCA, window (integral images, the whole ball)"]["answered"]
+        answered = rows[PCA_WINDOW]["answered"]
         assert answered.endswith("%") and 50 < float(answered[:-1]) <= 100  # the share with a normal
     segments = read_section(doc, "eval-segment")  # planar segmentation by region growing on the fold frames
     cells = [[c.strip() for c in line.split("|")[1:-1]] for line in segments.splitlines() if line.startswith("| ")]

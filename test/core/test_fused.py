@@ -21,7 +21,7 @@ from triplet_normal_ros.core.config.conventions import (
 )
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.range_image.check import range_pitch
-from triplet_normal_ros.core.range_image.image import MomentImage
+from triplet_normal_ros.core.range_image.image import MomentImage, ray_noise_normal
 from triplet_normal_ros.core.range_image.image_numba import CompiledImage
 from triplet_normal_ros.core.range_image.sides import snap_to_sides
 from triplet_normal_ros.core.range_image.survey import survey_and_cue, survey_on_slope, window_z
@@ -287,3 +287,17 @@ def test_the_one_pass_normals_are_the_window_fit_finished(name: str) -> None:
     assert np.isfinite(normals).all(axis=1).sum() > 1000
     np.testing.assert_array_equal(normals, ref_normals)
     np.testing.assert_array_equal(curvature, ref_curvature)
+
+
+@pytest.mark.parametrize("name", sorted(FRAMES))
+def test_the_compiled_windows_of_k_pixels_are_the_torch_ones(name: str) -> None:
+    """`pca`'s windows capped at about k pixels (`image.window_angle_cap`): the same windows and planes in both."""
+    points, shape, radius, scale, _ = FRAMES[name]
+    cloud = torch.from_numpy(points)
+    pitch = range_pitch(cloud, shape)
+    fit = MomentImage(cloud, shape, pitch).pca(radius, scale, PCA_DEFAULT_K)
+    answered = (fit.valid & torch.isfinite(cloud).all(dim=1)).numpy()
+    normals, _ = CompiledImage(cloud, shape, pitch).normals(radius, scale, PCA_DEFAULT_K)
+    np.testing.assert_array_equal(np.isfinite(normals).all(axis=1), answered)
+    reference = ray_noise_normal(fit).numpy()[answered]
+    assert np.abs((reference * normals[answered]).sum(axis=1)).min() > 1 - 1e-6

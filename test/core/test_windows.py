@@ -362,3 +362,38 @@ def test_the_gate_also_reads_the_windows_the_survey_answers_from(kind: str) -> N
     normals, _ = lite.estimate(points.numpy(), shape=frame.points.shape[:2])
     answer = np.radians(angle_error(normals, exact))[only_fitted] ** 2
     assert answer.mean() < 0.5 * error[only_fitted].mean(), (answer.mean(), error[only_fitted].mean())
+
+
+def test_pca_windows_hold_about_k_pixels_where_the_ball_would_hold_more() -> None:
+    """At 0.15 m a 5 cm ball spans about 1,800 of this camera's pixels: `pca` keeps about its k nearest, as a pool of k
+    does; the survey's windows keep the whole ball."""
+    points = torch.from_numpy(pinhole(np.full((HEIGHT, WIDTH), 0.15)))
+    image = windows.MomentImage(points, (HEIGHT, WIDTH), range_pitch(points, (HEIGHT, WIDTH)))
+    centre = (HEIGHT // 2) * WIDTH + WIDTH // 2
+    whole = float(image.pca(0.05).count[centre])
+    for k in (64, 300):
+        held = float(image.pca(0.05, pixels=k).count[centre])
+        assert 0.7 * k < held < 1.4 * k < whole
+
+
+def test_a_window_of_k_pixels_keeps_a_close_fold_sharper_than_the_whole_ball() -> None:
+    # Two walls meeting in a vertical fold 0.15 m in front of the camera, each 45 degrees to the view: there a 5 cm
+    # ball spans over a thousand pixels.
+    _, u = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)
+    x = (u - WIDTH / 2) / FOCAL
+    depth = 0.15 / (1.0 + np.abs(x))  # z = 0.15 - |x z|: the planes z ± x = 0.15
+    points = pinhole(depth)
+    exact = np.stack((np.sign(x) / np.sqrt(2), np.zeros_like(x), np.full_like(x, 1 / np.sqrt(2))), axis=-1)
+    exact = exact.reshape(-1, 3)
+    near_fold = np.abs(points[:, 0]) < 0.03
+    errors = {}
+    for neighbours in ("window", "kdtree"):
+        estimator = NormalEstimator("pca", radius=0.05, neighbours=neighbours)
+        normals, _ = estimator.estimate(points, shape=(HEIGHT, WIDTH))
+        errors[neighbours] = msae(normals[near_fold], exact[near_fold])
+    image = windows.MomentImage(
+        torch.from_numpy(points), (HEIGHT, WIDTH), range_pitch(torch.from_numpy(points), (HEIGHT, WIDTH))
+    )
+    whole = ray_noise_normal(image.pca(0.05)).numpy()
+    assert errors["window"] < 0.5 * msae(whole[near_fold], exact[near_fold])
+    assert errors["window"] < 2 * errors["kdtree"]

@@ -237,7 +237,7 @@ class RangeScores:
     pca: np.ndarray
     learned: np.ndarray
     hybrid: np.ndarray
-    window: np.ndarray  # pca over the windows (the whole ball)
+    window: np.ndarray  # pca over the windows (about k pixels at most)
     edge: np.ndarray
 
     def ratio(self, method: str, edge_only: bool = False) -> float:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..core.learned.checkpoint import read_metadata, resolve_checkpoint
+from .range_eval import PCA_WINDOW
 from .report import read_section
 
 #: The real frames real_frame_speed times, in its order, and the range-image sets of eval, with README's names.
@@ -20,7 +21,7 @@ FRAMES = ("frame_20121214T142255", "table_scene_mug")
 SETS = {"depth": "depth frames of rooms", "fold": "close-range fold frames", "lidar": "32-beam LiDAR scans"}
 #: eval's row labels for the `default` checkpoint, whose rows carry no checkpoint name.
 EVAL_DEFAULT = {"learned": "learned", "hybrid": "hybrid (F > 10, bend > 0.03)"}
-EVAL_PCA_WINDOW, EVAL_PCA_POOL = "PCA, window (integral images, the whole ball)", "PCA, k = 512 (the learned pool)"
+EVAL_PCA_WINDOW, EVAL_PCA_POOL = PCA_WINDOW, "PCA, k = 512 (the learned pool)"
 NODE_DEFAULT = "hybrid, range (the node's default on a CPU)"
 
 

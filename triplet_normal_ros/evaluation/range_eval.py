@@ -17,9 +17,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.config.conventions import DEPTH_RADIUS, LIDAR_RADIUS, LIDAR_RANGE_SCALE, POOL_FACTOR
+from ..core.config.conventions import DEPTH_RADIUS, LIDAR_RADIUS, LIDAR_RANGE_SCALE, PCA_DEFAULT_K, POOL_FACTOR
 from ..core.estimator import NormalEstimator
 from .metrics import angles_rad
+
+#: The row of `pca` at its defaults on a range image: the integral-image window, about k pixels at most.
+PCA_WINDOW = f"PCA, window (integral images, up to {PCA_DEFAULT_K} pixels)"
 
 #: Frames evaluated per set (seeds 0..n-1 of simulation.range_scans) and query pixels per frame.
 FRAMES, QUERIES = 3, 5000
@@ -102,7 +105,7 @@ def _range_rows(checkpoint, device: str, k: int | None, radius: float, shipped) 
         f"PCA, k = {POOL_FACTOR * learned.k} (the learned pool)": NormalEstimator(
             "pca", radius=radius, k=POOL_FACTOR * learned.k, device=device, neighbours="kdtree"
         ),
-        "PCA, window (integral images, the whole ball)": NormalEstimator("pca", radius=radius, device=device),
+        PCA_WINDOW: NormalEstimator("pca", radius=radius, device=device),
         "learned": learned,
         f"hybrid (F > {hybrid.gate:g}, bend > {hybrid.bend:g})": hybrid,
         "hybrid, ball survey": NormalEstimator("hybrid", radius=radius, checkpoint=checkpoint, device=device, **ball),

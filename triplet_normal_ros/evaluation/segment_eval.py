@@ -20,6 +20,7 @@ from tqdm import tqdm
 from ..core.config.conventions import DEPTH_RADIUS
 from ..core.estimator import NormalEstimator
 from ..simulation.range_scans import fold_frames
+from .range_eval import PCA_WINDOW
 from .segmentation import (
     MAX_ANGLE_DEG,
     MAX_DISTANCE,
@@ -55,7 +56,7 @@ def segment_estimators(device: str) -> dict[str, NormalEstimator]:
     default checkpoint on every pixel is left out: on a 2-core CPU it takes minutes a frame."""
     r = DEPTH_RADIUS
     rows = {
-        "PCA, window (integral images, the whole ball)": NormalEstimator("pca", radius=r, device=device),
+        PCA_WINDOW: NormalEstimator("pca", radius=r, device=device),
         "PCA, k = 30": NormalEstimator("pca", radius=r, k=30, device=device),
         "hybrid, no checkpoint named (the node's default)": NormalEstimator("hybrid", radius=r, device=device),
         "learned, no checkpoint named (`estimate`'s default)": NormalEstimator("learned", radius=r, device=device),
@@ -92,7 +93,7 @@ def evaluate_segments(
     return scores, {"frames": len(frames), "picture": picture}
 
 
-_PICTURED = ("PCA, window (integral images, the whole ball)", "hybrid, no checkpoint named (the node's default)",
+_PICTURED = (PCA_WINDOW, "hybrid, no checkpoint named (the node's default)",
              "hybrid, default")  # fmt: skip
 
 

@@ -48,13 +48,14 @@ def window_pca(call: Call, image: MomentImage, query: np.ndarray, progress) -> t
     """Every pixel's window plane at once, then the query's rows (`range_image.image`; compiled, one pass per pixel to
     the finished answer). The plane is the window's ray-noise plane (`image.ray_noise_normal`): PCA's normal on a
     noise-free window, and on a noisy one the normal PCA tips toward the ray (docs/HISTORY.md, "Window `pca` with the
-    ray-noise plane"). The curvature is PCA's surface variation of the window."""
+    ray-noise plane"). The curvature is PCA's surface variation of the window. A window holds about k pixels at most,
+    the nearest k points as the pool path takes them (docs/HISTORY.md, "Window `pca` at k pixels")."""
     s = call.settings
     if image.compiled:
-        normals, curvature = image.normals(s.radius, s.range_scale)
+        normals, curvature = image.normals(s.radius, s.range_scale, call.pool_size())
         finite = image.finite.reshape(-1)
     else:
-        fit = image.pca(s.radius, s.range_scale)
+        fit = image.pca(s.radius, s.range_scale, call.pool_size())
         finite = image.finite.reshape(-1)
         normals, curvature = finish(ray_noise_normal(fit), surface_variation(fit.eigvals), fit.valid & finite)
     whole = len(query) == len(finite) and bool(query[0] == 0) and bool((np.diff(query) == 1).all())

@@ -106,12 +106,12 @@ class MomentImage:
         one = self.finite.to(torch.float64)
         return torch.stack((one, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z), dim=-1)
 
-    def pca(self, radius: float, range_scale: float = 0.0) -> WindowPCA:
+    def pca(self, radius: float, range_scale: float = 0.0, pixels: float = 0.0) -> WindowPCA:
         """Window PCA of every pixel at the metric `radius`, with windows that cross no depth discontinuity; with a
         `range_scale` > 0 each pixel's ball grows to max(radius, range_scale × its range) (a spinning LiDAR's rings
-        part with range)."""
+        part with range); with `pixels` > 0 no window spans more than about that many pixels (`_half_widths`)."""
         reach = float(radius) if range_scale == 0 else (self.range * range_scale).clamp_min(radius)
-        half_row, half_col = self._half_widths(reach)
+        half_row, half_col = self._half_widths(reach, pixels)
         walls = _WallTable(self.range, *self._jump_thresholds(reach))
         flat = reach if isinstance(reach, float) else torch.nan_to_num(reach.reshape(-1), nan=radius)
         self._sizing = (half_row, half_col, walls, flat)
@@ -151,14 +151,25 @@ class MomentImage:
             thresholds.append(torch.maximum(self.range * fraction, floor))
         return thresholds[0], thresholds[1]
 
-    def _half_widths(self, reach: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
-        """Half-widths in pixels per axis: the ball's angular radius over each axis' angular step (0 for holes)."""
+    def _half_widths(self, reach: torch.Tensor | float, pixels: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
+        """Half-widths in pixels per axis: the ball's angular radius over each axis' angular step (0 for holes). With
+        `pixels` > 0 the angle is at most `window_angle_cap`'s, so that the window holds about that many pixels
+        where the ball would hold more: the nearest `pixels` points, as a pool of that size takes them."""
         angle = torch.asin((reach / self.range).clamp(max=1.0)) * AREA_MATCH
         per_row = self.pitch_row.to(angle.dtype).view(-1, 1)
         per_col = self.pitch_col.to(angle.dtype).view(1, -1)
+        if pixels > 0:
+            angle = torch.minimum(angle, window_angle_cap(pixels, per_row, per_col))
         rows = torch.nan_to_num(torch.round(angle / per_row), nan=0.0).clamp(0, float(self.height))
         cols = torch.nan_to_num(torch.round(angle / per_col), nan=0.0).clamp(0, float(self.width))
         return rows.to(torch.int64), cols.to(torch.int64)
+
+
+def window_angle_cap(pixels: float, pitch_row: torch.Tensor, pitch_col: torch.Tensor) -> torch.Tensor:
+    """The angular radius whose window holds `pixels` pixels: a window of half-widths a / pitch_row and a / pitch_col
+    spans about (2a / pitch_row) (2a / pitch_col) pixels, so a = sqrt(pixels · pitch_row · pitch_col) / 2, in the
+    order the compiled twin (`image_numba._halves`) computes it, so both round to the same half-widths."""
+    return torch.sqrt(pixels * pitch_row * pitch_col) / 2
 
 
 def on_slope(half_row: torch.Tensor, half_col: torch.Tensor, normal: torch.Tensor, rays: torch.Tensor):

@@ -107,12 +107,13 @@ class CompiledImage:
         )
         return normals, curvature
 
-    def normals(self, radius: float, range_scale: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """`pca` then `finish` in one pass (`window_normals`), when nothing else reads the windows; `finite` then
-        reads the ranges it computed."""
+    def normals(self, radius: float, range_scale: float = 0.0, pixels: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """`pca` (with its `pixels`) then `finish` in one pass (`window_normals`), when nothing else reads the windows;
+        `finite` then reads the ranges it computed."""
         normals, curvature, ranges = window_normals(
-            self.points.numpy(), self.pitch_row.numpy(), self.pitch_col.numpy(), float(radius), float(range_scale)
-        )
+            self.points.numpy(), self.pitch_row.numpy(), self.pitch_col.numpy(), float(radius), float(range_scale),
+            float(pixels),
+        )  # fmt: skip
         self.fit = {"ranges": ranges}
         return normals, curvature
 
@@ -163,9 +164,11 @@ def window_pca(
 
 
 def window_normals(
-    points: np.ndarray, pitch_row: np.ndarray, pitch_col: np.ndarray, radius: float, range_scale: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`window_pca` and `CompiledImage.finish` in one pass per pixel, for `pca`, which reads nothing else: unit
+    points: np.ndarray, pitch_row: np.ndarray, pitch_col: np.ndarray, radius: float, range_scale: float,
+    pixels: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """`window_pca` (windows of about `pixels` pixels at most, where that is not 0: `MomentImage.pca`) and
+    `CompiledImage.finish` in one pass per pixel, for `pca`, which reads nothing else: unit
     float32 normals (H·W, 3) and curvature (H·W), NaN where there is no valid window or no point, and the (H, W)
     ranges. The same windows and arithmetic, so the same answers, without the eight per-pixel arrays of the fit that
     hybrid's survey reads (about 50 MB on a 640x480 frame)."""
@@ -175,8 +178,8 @@ def window_normals(
     curvature = np.empty(height * width, dtype=np.float32)
     bands(
         _normals, height, tables["table"], tables["counts"], tables["offset"], tables["ranges"], tables["reach_grid"],
-        tables["pitch_row"], tables["pitch_col"], tables["col_walls"], tables["row_walls"], normals, curvature,
-        pieces=4,
+        tables["pitch_row"], tables["pitch_col"], tables["col_walls"], tables["row_walls"], float(pixels), normals,
+        curvature, pieces=4,
     )  # fmt: skip
     return normals, curvature, tables["ranges"]
 
@@ -305,10 +308,11 @@ def _finish_one(x, y, z, eigvals, answered, normals, curvature, i):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _normals(
-    table, counts, offset, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, normals, curvature, lo, hi
+    table, counts, offset, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, pixels, normals, curvature, lo, hi
 ):
-    """Rows lo..hi of `window_normals`: each pixel's window, its PCA and validity, and the finished answer, the
-    window's ray-noise plane. A hole answers NaN without a window, since `_finish` discards its fit."""
+    """Rows lo..hi of `window_normals`: each pixel's window (of about `pixels` pixels at most, where that is not 0),
+    its PCA and validity, and the finished answer, the window's ray-noise plane. A hole answers NaN without a window,
+    since `_finish` discards its fit."""
     height, width = ranges.shape
     eigvals, normal = np.empty(3), np.empty(3)
     for r in range(lo, hi):
@@ -317,7 +321,7 @@ def _normals(
             if np.isnan(ranges[r, c]):
                 _finish_one(0.0, 0.0, 0.0, eigvals, False, normals, curvature, i)
                 continue
-            half_row, half_col = _halves(ranges, reach, pitch_row, pitch_col, r, c)
+            half_row, half_col = _halves(ranges, reach, pitch_row, pitch_col, r, c, pixels)
             top, bottom, left, right = _window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width)
             k, mx, my, mz, c0, c1, c2, c3, c4, c5 = _box_moments(table, top, bottom, left, right)
             smallest_eigenvector(c0, c1, c2, c3, c4, c5, eigvals, normal)
@@ -543,7 +547,7 @@ def _pixels(
     for r in range(lo, hi):
         for c in range(width):
             i = r * width + c
-            half_row, half_col = _halves(ranges, reach, pitch_row, pitch_col, r, c)
+            half_row, half_col = _halves(ranges, reach, pitch_row, pitch_col, r, c, 0.0)
             if slope.shape[0]:
                 sx, sy, sz = slope[i, 0], slope[i, 1], slope[i, 2]
                 if sx == 0.0 and sy == 0.0 and sz == 0.0:
@@ -565,10 +569,13 @@ def _pixels(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _halves(ranges, reach, pitch_row, pitch_col, r, c):
-    """The window's half-widths in pixels per axis from the ball's angular radius (`MomentImage._half_widths`)."""
+def _halves(ranges, reach, pitch_row, pitch_col, r, c, pixels):
+    """The window's half-widths in pixels per axis from the ball's angular radius, with `pixels` > 0 capped so that
+    the window holds about that many (`MomentImage._half_widths`; the cap is `image.window_angle_cap`'s)."""
     height, width = ranges.shape
     angle = math.asin(min(reach[r, c] / ranges[r, c], 1.0)) * AREA_MATCH
+    if pixels > 0:
+        angle = min(angle, math.sqrt(pixels * pitch_row[r] * pitch_col[c]) / 2)
     half_row = min(max(_round_or_zero(angle / pitch_row[r]), 0.0), float(height))
     half_col = min(max(_round_or_zero(angle / pitch_col[c]), 0.0), float(width))
     return np.int64(half_row), np.int64(half_col)

@@ -30,7 +30,7 @@ INPUT, OUTPUT = "/demo/camera/depth/points", "/demo/camera/depth/normals"
 RADIUS = defaults.RADIUS
 #: The node's defaults (hybrid, the default checkpoint) at a depth camera's usual radius.
 HYBRID = {"method": "hybrid", "radius": RADIUS}
-#: PCA at the node's default k (the whole ball): on these organized frames, the integral-image windows.
+#: PCA at the node's default k: on these organized frames, the integral-image windows (about k pixels at most).
 PCA = {"method": "pca", "radius": RADIUS}
 
 
