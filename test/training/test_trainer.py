@@ -312,7 +312,8 @@ def test_a_state_written_before_scales_existed_resumes_as_a_run_without_them(tmp
     run_dir = tmp_path / "old_state"
     train.run(_args("--encoder-epochs 1 --regressor-epochs 1", run_dir))
     state = torch.load(run_dir / "state.pt", weights_only=True)
-    for added in ("scales", "inlier_seeds", "range_frames"):  # fields added after such a state was written
+    # Fields added after such a state was written:
+    for added in ("scales", "inlier_seeds", "range_frames", "fold_frames"):
         del state["recipe"][added]
     del state["best"]  # saved since; without it only the last epoch's weights are known
     torch.save(state, run_dir / "state.pt")
@@ -349,6 +350,28 @@ def test_range_frames_join_the_training_and_validation_clouds_at_their_metric_ra
     trained, validated = heads(s.points for s in samplers["train"]), heads(s.points for s in samplers["val"])
     assert len(trained) == 6 and len(validated) == 2
     assert not trained & validated and not (trained | validated) & scored
+
+
+def test_fold_frames_join_at_the_depth_radius_from_seeds_that_eval_and_the_studies_never_score(tmp_path):
+    from triplet_normal_ros.simulation.range_scans import fold_frames
+    from triplet_normal_ros.training.trainer import _range_samplers
+
+    recipe = train.recipe_from_args(_args("--fold-frames 3", tmp_path))
+    assert recipe.range_frames == 0 and recipe.fold_frames == 3
+    samplers = {split: _range_samplers(recipe, split) for split in ("train", "val")}
+    assert [s.radius for s in samplers["train"]] == [0.05] * 3  # fold frames alone: no depth frames or LiDAR scans
+    assert [s.radius for s in samplers["val"]] == [0.05]  # a third as many, at least one
+
+    def heads(clouds) -> set[bytes]:
+        return {c[np.isfinite(c).all(axis=1)][:5].tobytes() for c in clouds}
+
+    scored = heads(f.points.reshape(-1, 3).astype(np.float64) for f in fold_frames(6) + fold_frames(6, 100))
+    trained, validated = heads(s.points for s in samplers["train"]), heads(s.points for s in samplers["val"])
+    assert len(trained) == 3 and len(validated) == 1
+    assert not trained & validated and not (trained | validated) & scored
+    assert train.recipe_from_args(_args("--fold-frames 0", tmp_path)).fold_frames == 0
+    with pytest.raises(UsageError, match="--fold-frames"):
+        train.recipe_from_args(_args("--fold-frames -1", tmp_path))
 
 
 def test_inlier_seeds_without_scales_are_one_usage_error(tmp_path):

@@ -44,6 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "val_patches_per_cloud",
         "seed",
         "range_frames",
+        "fold_frames",
     ):
         parser.add_argument("--" + name.replace("_", "-"), type=int)
     parser.add_argument(

@@ -95,4 +95,7 @@ def data(recipe: dict[str, Any]) -> str:
     frames = recipe.get("range_frames") or 0
     if frames:
         text += f", {frames} depth frames and {frames} LiDAR scans"
+    folds = recipe.get("fold_frames") or 0
+    if folds:
+        text += f", {folds} close-range fold frames"
     return text + f"; {recipe['regressor_patches_per_shape']} patches per cloud"

@@ -43,6 +43,7 @@ class Recipe:
     scales: list[int] = field(default_factory=list)  # nearest-m plane fits for a scale head; empty: none
     inlier_seeds: list[int] = field(default_factory=list)  # inlier plane fits grown from the nearest s (scale head)
     range_frames: int = 0  # simulated depth frames and LiDAR scans (each) added to the training clouds
+    fold_frames: int = 0  # simulated close-range fold frames (boxes, stairs, corners ...) added to them
     seed: int = 0
     shapes: list[str] | None = None
     val_shapes: list[str] | None = None
@@ -66,6 +67,7 @@ RESUME_FIXED = (
     "scales",
     "inlier_seeds",
     "range_frames",
+    "fold_frames",
     "seed",
 )
 
@@ -151,7 +153,7 @@ COUNTS = (
     "n_points",
     "val_patches_per_cloud",
 )
-EPOCHS = ("encoder_epochs", "regressor_epochs", "finetune_epochs", "range_frames")
+EPOCHS = ("encoder_epochs", "regressor_epochs", "finetune_epochs", "range_frames", "fold_frames")
 
 
 def check_counts(recipe: Recipe) -> None:

@@ -192,17 +192,21 @@ def _samplers(recipe: Recipe, split: str) -> list[PatchSampler]:
 
 
 def _range_samplers(recipe: Recipe, split: str) -> list[PatchSampler]:
-    """Simulated depth frames and LiDAR scans at their metric radii, `recipe.range_frames` of each for training and a
-    third as many (at least one) for validation, from frame seeds that eval never scores (`range_scans.TRAIN_SEED`):
-    what robots see (noise along the ray, falling density, rings) beside the uniform CAD samples."""
-    if not recipe.range_frames:
-        return []
-    from ..simulation.range_scans import TRAIN_SEED, VAL_SEED, depth_frames, lidar_scans
+    """Simulated depth frames and LiDAR scans at their metric radii, `recipe.range_frames` of each, and
+    `recipe.fold_frames` close-range fold frames, for training; a third as many of each (at least one) for validation.
+    All come from frame seeds that eval and the studies never score (`range_scans.TRAIN_SEED`): what robots see (noise
+    along the ray, falling density, rings, folds a hand's width across) beside the uniform CAD samples."""
+    from ..simulation.range_scans import TRAIN_SEED, VAL_SEED, depth_frames, fold_frames, lidar_scans
 
     train = split == "train"
-    count, seed = (recipe.range_frames, TRAIN_SEED) if train else (max(1, recipe.range_frames // 3), VAL_SEED)
-    frames = [(f, DEPTH_RADIUS) for f in depth_frames(count, seed)]
-    frames += [(f, LIDAR_RADIUS) for f in lidar_scans(count, seed)]
+    seed = TRAIN_SEED if train else VAL_SEED
+
+    def count(n: int) -> int:
+        return n if train or not n else max(1, n // 3)
+
+    frames = [(f, DEPTH_RADIUS) for f in depth_frames(count(recipe.range_frames), seed)]
+    frames += [(f, LIDAR_RADIUS) for f in lidar_scans(count(recipe.range_frames), seed)]
+    frames += [(f, DEPTH_RADIUS) for f in fold_frames(count(recipe.fold_frames), seed)]
     fits = recipe.fit_options()
     return [
         PatchSampler(f.points.reshape(-1, 3), f.normals.reshape(-1, 3), recipe.radius_rel, recipe.k, radius=r, **fits)
