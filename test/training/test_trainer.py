@@ -352,6 +352,7 @@ def test_range_frames_join_the_training_and_validation_clouds_at_their_metric_ra
     assert not trained & validated and not (trained | validated) & scored
 
 
+@pytest.mark.slow  # generates 16 full fold frames where the cache lacks them
 def test_fold_frames_join_at_the_depth_radius_from_seeds_that_eval_and_the_studies_never_score(tmp_path):
     from triplet_normal_ros.simulation.range_scans import fold_frames
     from triplet_normal_ros.training.trainer import _range_samplers

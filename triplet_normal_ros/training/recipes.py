@@ -117,9 +117,10 @@ RECIPES = {
         range_frames=12,
     ),
     # The range checkpoint, a CPU's network on range images: lite's training on a quarter of the patch (k = 32, a
-    # 128-point pool) and a 128-wide latent, with lite's training clouds plus 12 depth frames and 12 LiDAR scans. On
-    # depth frames it is within a few per cent of lite's error at a fraction of its pools, patches and network; on
-    # dense noisy clouds at large radii its small pool loses to lite's (docs/MODEL.md, "The range network").
+    # 128-point pool) and a 128-wide latent, with lite's training clouds plus 12 depth frames, 12 LiDAR scans and 24
+    # fold frames. On depth frames it has a little less error than lite at a fraction of its pools, patches and
+    # network; on dense noisy clouds at large radii its small pool loses to lite's (docs/MODEL.md, "The range
+    # network").
     # Its loss is the plain squared angle: the relative loss, which discounts patches where PCA is far off, left the
     # network's edges as blurred as PCA's on range images (docs/HISTORY.md, "The loss decides the edges"). Phase (b)
     # draws 6000 patches per cloud, twice lite's: on frames eval never scores that cut hybrid's error by a further
@@ -145,8 +146,9 @@ RECIPES = {
 }
 
 
-#: Recipe sizes that must be at least 1, and counts that may be 0 (an epoch count: the phase is skipped; range_frames);
-#: k must be at least MIN_NEIGHBOURS (a plane needs three points) and the cos exponent at least 1.
+#: Recipe sizes that must be at least 1, and counts that may be 0 (an epoch count: the phase is skipped;
+#: range_frames, fold_frames); k must be at least MIN_NEIGHBOURS (a plane needs three points) and the cos exponent at
+#: least 1.
 COUNTS = (
     "exponent",
     "patches_per_shape",

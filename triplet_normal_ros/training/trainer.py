@@ -196,6 +196,8 @@ def _range_samplers(recipe: Recipe, split: str) -> list[PatchSampler]:
     `recipe.fold_frames` close-range fold frames, for training; a third as many of each (at least one) for validation.
     All come from frame seeds that eval and the studies never score (`range_scans.TRAIN_SEED`): what robots see (noise
     along the ray, falling density, rings, folds a hand's width across) beside the uniform CAD samples."""
+    if not (recipe.range_frames or recipe.fold_frames):
+        return []
     from ..simulation.range_scans import TRAIN_SEED, VAL_SEED, depth_frames, fold_frames, lidar_scans
 
     train = split == "train"

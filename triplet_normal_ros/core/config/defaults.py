@@ -16,8 +16,8 @@ CHECKPOINT = ""
 #: depth frames (docs/HISTORY.md, "Lite checkpoint"), so a frame is answered in seconds rather than a quarter minute.
 SHIPPED_FOR_DEVICE = {"cuda": "default", "cpu": "lite"}
 #: ... except on a range image (an organized cloud whose grid is trusted, `plan.make_plan`), by device type: on a CPU
-#: the range checkpoint, trained with depth frames and LiDAR scans on a quarter of the default's patch, which answers
-#: range images in about half lite's time, within a few per cent of its error (more on room frames, less at folds);
+#: the range checkpoint, trained with depth frames, LiDAR scans and fold frames on a quarter of the default's patch,
+#: which answers range images in about half lite's time with a little less error (on room frames and at folds);
 #: on the dense, noisy clouds of the validation set its 128-point pool loses to lite's 256 (docs/RESULTS.md, "The
 #: range checkpoint"), so every other cloud keeps lite.
 SHIPPED_FOR_RANGE_IMAGES = {"cpu": "range"}
