@@ -17,7 +17,7 @@ CHECKPOINT = ""
 SHIPPED_FOR_DEVICE = {"cuda": "default", "cpu": "lite"}
 #: ... except on a range image (an organized cloud whose grid is trusted, `plan.make_plan`), by device type: on a CPU
 #: the range checkpoint, trained with depth frames, LiDAR scans and fold frames on a quarter of the default's patch,
-#: which answers range images in about half lite's time with a little less error (on room frames and at folds);
+#: which answers range images in less time than lite, with less error at folds and about lite's on room frames;
 #: on the dense, noisy clouds of the validation set its 128-point pool loses to lite's 256 (docs/RESULTS.md, "The
 #: range checkpoint"), so every other cloud keeps lite.
 SHIPPED_FOR_RANGE_IMAGES = {"cpu": "range"}
