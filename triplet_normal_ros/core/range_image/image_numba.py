@@ -573,9 +573,14 @@ def _halves(ranges, reach, pitch_row, pitch_col, r, c, pixels):
     """The window's half-widths in pixels per axis from the ball's angular radius, with `pixels` > 0 capped so that
     the window holds about that many (`MomentImage._half_widths`; the cap is `image.window_angle_cap`'s)."""
     height, width = ranges.shape
-    angle = math.asin(min(reach[r, c] / ranges[r, c], 1.0)) * AREA_MATCH
+    ratio = min(reach[r, c] / ranges[r, c], 1.0)
     if pixels > 0:
-        angle = min(angle, math.sqrt(pixels * pitch_row[r] * pitch_col[c]) / 2)
+        cap = math.sqrt(pixels * pitch_row[r] * pitch_col[c]) / 2
+        # asin(x) >= x, so where x · AREA_MATCH already reaches the cap, the cap is the angle (most pixels of a
+        # depth frame at k = 500): the same value without the arcsine
+        angle = cap if ratio * AREA_MATCH >= cap else min(math.asin(ratio) * AREA_MATCH, cap)
+    else:
+        angle = math.asin(ratio) * AREA_MATCH
     half_row = min(max(_round_or_zero(angle / pitch_row[r]), 0.0), float(height))
     half_col = min(max(_round_or_zero(angle / pitch_col[c]), 0.0), float(width))
     return np.int64(half_row), np.int64(half_col)
