@@ -41,18 +41,22 @@ def fastest(call: Callable[[], object], repeats: int) -> float:
     return min(times) * 1e3
 
 
-def stage_times(points: np.ndarray, shape: tuple[int, int], repeats: int) -> dict[str, float]:
-    """Milliseconds per stage of one frame at torch's present thread count."""
+def _prepared(points: np.ndarray, shape: tuple[int, int]) -> tuple:
+    """(estimator, cloud tensor, grid, row pitch, column pitch, tables) of one frame, as `estimate` builds them."""
     estimator = NormalEstimator(radius=DEPTH_RADIUS, device="cpu", method="pca")
     cloud = torch.from_numpy(points.copy())
-    settings = estimator.settings
-    _, pitch = plan_cloud(settings, estimator.device, cloud, shape)
+    _, pitch = plan_cloud(estimator.settings, estimator.device, cloud, shape)
     grid = cloud.view(*shape, 3).numpy()
     rows, cols = pitch[0].numpy(), pitch[1].numpy()
-    tables = image_numba._tables(grid, rows, cols, DEPTH_RADIUS, 0.0)
+    return estimator, cloud, grid, rows, cols, image_numba._tables(grid, rows, cols, DEPTH_RADIUS, 0.0)
+
+
+def stage_times(points: np.ndarray, shape: tuple[int, int], repeats: int) -> dict[str, float]:
+    """Milliseconds per stage of one frame at torch's present thread count."""
+    estimator, cloud, grid, rows, cols, tables = _prepared(points, shape)
     return {
         "whole": fastest(lambda: estimator.estimate(points, shape=shape), repeats),
-        "grid check": fastest(lambda: plan_cloud(settings, estimator.device, cloud, shape), repeats),
+        "grid check": fastest(lambda: plan_cloud(estimator.settings, estimator.device, cloud, shape), repeats),
         "tables": fastest(lambda: image_numba._tables(grid, rows, cols, DEPTH_RADIUS, 0.0), repeats),
         "kernel": fastest(lambda: _kernel(tables), repeats),
     }
@@ -89,11 +93,7 @@ def _census(ranges, reach, pitch_row, pitch_col, col_walls, row_walls, pixels):
 
 
 def census(points: np.ndarray, shape: tuple[int, int]) -> tuple[int, int, int]:
-    cloud = torch.from_numpy(points.copy())
-    estimator = NormalEstimator(radius=DEPTH_RADIUS, device="cpu", method="pca")
-    settings = estimator.settings
-    _, pitch = plan_cloud(settings, estimator.device, cloud, shape)
-    t = image_numba._tables(cloud.view(*shape, 3).numpy(), pitch[0].numpy(), pitch[1].numpy(), DEPTH_RADIUS, 0.0)
+    t = _prepared(points, shape)[-1]
     return _census(
         t["ranges"], t["reach_grid"], t["pitch_row"], t["pitch_col"], t["col_walls"], t["row_walls"],
         float(PCA_DEFAULT_K),
