@@ -2,7 +2,7 @@
 
 For each checkpoint: the learned method's MSAE on the validation clouds (eval's query points, fewer per cloud, no
 oracle and no floor), as ratios to PCA over the same pool at the same points, grouped as the targets are (clean CAD,
-CAD at 0.5 + 1 % pooled, smooth overall and per noise level, smooth clean RMSE), and the depth-frame and LiDAR sets
+CAD at 0.5 + 1 % pooled, smooth overall and per noise level, smooth clean RMSE), and the depth, fold and LiDAR sets
 of `eval` (learned and hybrid, against PCA over the pool). Used for the ablations of docs/RESULTS.md.
 
     .venv/bin/python docs/tools/checkpoint_study.py default out/scales/model.safetensors --per-cloud 1000
@@ -67,9 +67,9 @@ def target_table(rows: list[dict], names: list[str]) -> str:
 
 
 def range_table(checkpoints: list[str], device: str, neighbours: str = "auto", seed: int = 0) -> str:
-    """Depth frames, fold frames and LiDAR scans from `seed` on (eval's are 0, a choice is made on others): learned and
-    hybrid per checkpoint against PCA over the pool, every method with the `neighbours` search (the frames are
-    organized, so 'grid' takes pools from the pixel grid, 'kdtree' answers as for the same cloud unorganized)."""
+    """Depth frames, fold frames and LiDAR scans of the sets' `seed` (eval's is 0; a choice is made on others):
+    learned and hybrid per checkpoint against PCA over the pool, every method with the `neighbours` search (the frames
+    are organized, so 'grid' takes pools from the pixel grid, 'kdtree' answers as for the same cloud unorganized)."""
     lines = [
         "| set | method | MSAE | near edges | / PCA pool | / PCA pool near edges |",
         "| --- | --- | ---: | ---: | ---: | ---: |",
@@ -100,9 +100,9 @@ def main() -> None:
     parser.add_argument("--per-cloud", type=int, default=1000, help="validation query points per cloud")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--skip-range", action="store_true", help="validation clouds only")
-    parser.add_argument("--range-only", action="store_true", help="depth frames and LiDAR scans only")
+    parser.add_argument("--range-only", action="store_true", help="the range sets only: depth, fold and LiDAR frames")
     parser.add_argument("--neighbours", default="auto", help="neighbour search on the range frames (auto, grid, ...)")
-    parser.add_argument("--seed", type=int, default=0, help="first seed of the range frames (eval scores 0)")
+    parser.add_argument("--seed", type=int, default=0, help="the seed of the range sets (eval's is 0)")
     args = parser.parse_args()
     start = time.time()
     if not args.range_only:

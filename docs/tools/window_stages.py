@@ -5,12 +5,12 @@ Stages, in the order `estimate` runs them: the grid check (`route.plan_cloud`: s
 the ray pitch), the tables (`image_numba._tables`: ranges, the moment table about the cloud's mean, the wall tables)
 and the one-pass kernel (`image_numba._normals`: each pixel's window, its moments, eigen-decomposition, validity and
 ray-noise plane); *whole* is one `estimate` of the frame, the stages and the glue between them. Each figure is the
-fastest of `--repeats` calls after a warm-up (the least disturbed by other work), on eval's depth frames of seeds
-0..n-1, at the depth radius and the default k. A second table counts the windows the kernel had to search: cut by a
-wall (a shrunk centred box, a binary search over the shrink levels) and cut below half their reach (the one-sided
-halves and quarters too), which cost most per pixel.
+fastest of `--repeats` calls after a warm-up (the least disturbed by other work), on the first `--frames` of eval's
+depth frames (`range_scans.depth_frames(n, 0)`, the `eval-depth` block's), at the depth radius and the default k. A
+second table counts the windows the kernel had to search: cut by a wall (a shrunk centred box, a binary search over
+the shrink levels) and cut below half their reach (the one-sided halves and quarters too), which cost most per pixel.
 
-Run: .venv/bin/python docs/tools/window_stages.py [--frames 2] [--repeats 7]   (about a minute on 2 quiet cores)
+Run: .venv/bin/python docs/tools/window_stages.py [--frames 3] [--repeats 7]   (about a minute on 2 quiet cores)
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS, PCA_DEFAULT
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.range_image import image_numba
 from triplet_normal_ros.core.route import plan_cloud
-from triplet_normal_ros.simulation.depth_camera import depth_frame
+from triplet_normal_ros.simulation.range_scans import depth_frames
 
 
 def fastest(call: Callable[[], object], repeats: int) -> float:
@@ -102,26 +102,25 @@ def census(points: np.ndarray, shape: tuple[int, int]) -> tuple[int, int, int]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--frames", type=int, default=2, help="eval's depth frames, seeds 0..n-1")
+    parser.add_argument("--frames", type=int, default=3, help="the first n of eval's depth frames")
     parser.add_argument("--repeats", type=int, default=7, help="timed calls per stage; the fastest is kept")
     args = parser.parse_args()
     threads = torch.get_num_threads()
     print("| frame | threads | whole ms | grid check ms | tables ms | kernel ms |")
     print("| --- | ---: | ---: | ---: | ---: | ---: |")
     counts = []
-    for seed in range(args.frames):
-        frame = depth_frame(seed)
+    for seed, frame in enumerate(depth_frames(args.frames, 0)):
         points, shape = frame.points.reshape(-1, 3).astype(np.float64), frame.points.shape[:2]
         for n in sorted({1, threads}):
             torch.set_num_threads(n)
             ms = stage_times(points, shape, args.repeats)
-            print(f"| depth {seed} | {n} | " + " | ".join(f"{ms[k]:.1f}" for k in ms) + " |")
+            print(f"| eval depth {seed} | {n} | " + " | ".join(f"{ms[k]:.1f}" for k in ms) + " |")
         torch.set_num_threads(threads)
         counts.append((seed, *census(points, shape)))
     print("\n| frame | pixels with a point | windows cut by a wall | cut below half their reach |")
     print("| --- | ---: | ---: | ---: |")
     for seed, answered, cut, short in counts:
-        print(f"| depth {seed} | {answered:,} | {cut / answered:.1%} | {short / answered:.1%} |")
+        print(f"| eval depth {seed} | {answered:,} | {cut / answered:.1%} | {short / answered:.1%} |")
 
 
 if __name__ == "__main__":

@@ -576,8 +576,8 @@ def _halves(ranges, reach, pitch_row, pitch_col, r, c, pixels):
     ratio = min(reach[r, c] / ranges[r, c], 1.0)
     if pixels > 0:
         cap = math.sqrt(pixels * pitch_row[r] * pitch_col[c]) / 2
-        # asin(x) >= x, so where x · AREA_MATCH already reaches the cap, the cap is the angle (most pixels of a
-        # depth frame at k = 500): the same value without the arcsine
+        # asin(x) >= x, so where x · AREA_MATCH already reaches the cap, the cap is the angle (a quarter to most
+        # pixels of a depth frame at k = 500, the near ones): the same value without the arcsine
         angle = cap if ratio * AREA_MATCH >= cap else min(math.asin(ratio) * AREA_MATCH, cap)
     else:
         angle = math.asin(ratio) * AREA_MATCH
