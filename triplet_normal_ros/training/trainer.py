@@ -2,9 +2,10 @@
 and an optional phase (c) that fine-tunes both.
 
 SGD (momentum 0.9, lr 0.01), lr × 0.1 after `patience` epochs without validation improvement, seeds fixed, tqdm
-progress, and a resumable state file after every epoch. Four presets (`recipes.RECIPES`): `paper` (the paper's, GPU
+progress, and a resumable state file after every epoch. Five presets (`recipes.RECIPES`): `paper` (the paper's, GPU
 scale), `cpu` (the CPU base the others start from, and `ablate`'s), `scales` (cpu plus the scale head and simulated
-range frames: the shipped default checkpoint) and `lite` (the lite checkpoint); docs/TRAINING.md records each.
+depth, LiDAR and fold frames: the shipped default checkpoint), `lite` and `range` (the lite and range checkpoints);
+docs/TRAINING.md records each.
 
 Reproducibility: torch's global generator is seeded once, draws the weight initialisation and then one shuffle per
 epoch (`_shuffled_batches`); every patch draws from generators seeded by its collection and its cloud

@@ -13,8 +13,7 @@ METHOD = "hybrid"
 CHECKPOINT = ""
 #: Which shipped checkpoint CHECKPOINT stands for, by device type: the default where a GPU runs the network; lite on a
 #: CPU, where the default's network and plane fits cost about four times lite's, for no less error with `hybrid` on
-#: simulated depth frames (docs/RESULTS.md, the `eval-depth` block), so a frame is answered in seconds rather than a
-#: quarter minute.
+#: simulated depth frames (docs/RESULTS.md, the `eval-depth` block), so a cloud costs a fraction of the default's time.
 SHIPPED_FOR_DEVICE = {"cuda": "default", "cpu": "lite"}
 #: ... except on a range image (an organized cloud whose grid is trusted, `plan.make_plan`), by device type: on a CPU
 #: the range checkpoint, trained with depth frames, LiDAR scans and fold frames on a quarter of the default's patch,
