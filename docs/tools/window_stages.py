@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from numba import njit
 
+from triplet_normal_ros.core.bands import bands
 from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS, PCA_DEFAULT_K
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.range_image import image_numba
@@ -66,7 +67,7 @@ def _kernel(tables: dict[str, np.ndarray]) -> None:
     height, width = tables["ranges"].shape
     normals = np.empty((height * width, 3), dtype=np.float32)
     curvature = np.empty(height * width, dtype=np.float32)
-    image_numba.bands(
+    bands(
         image_numba._normals, height, tables["table"], tables["counts"], tables["offset"], tables["ranges"],
         tables["reach_grid"], tables["pitch_row"], tables["pitch_col"], tables["col_walls"], tables["row_walls"],
         float(PCA_DEFAULT_K), normals, curvature, pieces=4,

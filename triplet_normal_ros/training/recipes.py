@@ -96,8 +96,8 @@ RECIPES = {
     "cpu": CPU,
     # The shipped checkpoint: the cpu recipe plus the scale head (plane fits over the nearest 8-128 pool
     # points), inlier fits grown from the nearest 16 and 32, and 12 simulated depth frames and 12 LiDAR scans among
-    # the training clouds; each measured in docs/HISTORY.md ("Toward the floor"). Phase (b) runs until the plateau
-    # schedule has cut the rate to 1e-8 and held it there: 79 epochs (docs/TRAINING.md, "The shipped checkpoint").
+    # the training clouds; each measured in docs/HISTORY.md ("Toward the floor"). Phase (b) runs 79 epochs, by whose
+    # end the plateau schedule has cut the rate to 1e-8 (docs/TRAINING.md, "The shipped checkpoint").
     # 24 close-range fold frames join its training clouds: 9 % less hybrid error on organized fold scenes and 18 %
     # less `learned` error on those scenes unorganized, that eval never scores (docs/HISTORY.md, "Default with fold
     # frames").
