@@ -53,15 +53,12 @@ def chord_stats(
     else:
         chord2 = np.empty((rays.shape[0], rays.shape[1] - 1))
         bands(_chords, rays.shape[0], rays, chord2, 0, 1)
-    valid = chord2[np.isfinite(chord2)]
-    if len(valid) < least:
+    finite, valid = _sample(chord2, samples)
+    if finite < least:
         return None
-    if len(valid) > samples:
-        valid = valid[np.round(np.linspace(0, len(valid) - 1, samples)).astype(np.int64)]
     low, high = _quantiles(valid, 0.05, 0.95)
-    lines = chord2 if axis == 0 else np.ascontiguousarray(chord2.T)  # one pixel line per row of `lines`
-    per_line = np.empty(len(lines))
-    bands(_lower_medians, len(lines), lines, per_line)
+    per_line = np.empty(chord2.shape[axis])
+    bands(_lower_medians, len(per_line), chord2, axis, per_line)
     return low, high, torch.from_numpy(per_line)
 
 
@@ -149,12 +146,53 @@ def _chords(rays, out, step_row, step_col, lo, hi):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _lower_medians(lines, out, lo, hi):
-    """torch.nanmedian of each row of `lines`: the lower middle of its finite values, NaN when it has none."""
-    buffer = np.empty(lines.shape[1])
+def _sample(values, samples):
+    """How many of `values` are finite, and those values in memory order, or where there are more than `samples`, those
+    at the rounded positions np.linspace(0, n - 1, samples): the sample numpy's boolean and fancy indexing would take,
+    in two passes without the mask or the index arrays."""
+    flat = values.reshape(-1)
+    n = 0
+    for v in flat:
+        n += np.isfinite(v)
+    out = np.empty(min(n, samples))
+    if n == 0:
+        return n, out
+    step = (n - 1) / (samples - 1) if samples > 1 else 0.0
+    taken = seen = 0
+    wanted = 0
+    for v in flat:
+        if not np.isfinite(v):
+            continue
+        while taken < len(out) and wanted == seen:
+            out[taken] = v
+            taken += 1
+            wanted = _position(taken, len(out), n, samples, step)
+        seen += 1
+    return n, out
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _position(j, m, n, samples, step):
+    """The index of the j-th sampled finite value of n: j itself when all are kept, else np.linspace's j-th point
+    (j · step, the last exactly n - 1), rounded half to even."""
+    if m == n:
+        return j
+    if j == samples - 1:
+        return n - 1
+    return np.int64(np.round(j * step))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lower_medians(chord2, axis, out, lo, hi):
+    """torch.nanmedian of each pixel line of `chord2`, lines lo..hi: its rows (axis 0) or its columns (axis 1), the
+    lower middle of the line's finite values, NaN when it has none. A column is gathered from its stride, without
+    transposing the whole array first."""
+    length = chord2.shape[1 - axis]
+    buffer = np.empty(length)
     for i in range(lo, hi):
         n = 0
-        for v in lines[i]:
+        for j in range(length):
+            v = chord2[i, j] if axis == 0 else chord2[j, i]
             if np.isfinite(v):
                 buffer[n] = v
                 n += 1

@@ -24,7 +24,7 @@ from numba import njit
 
 from ..bands import bands
 from ..config.conventions import MIN_NEIGHBOURS
-from ..pca.eigen_numba import add_moments, smallest_eigenvector
+from ..pca.eigen_numba import smallest_eigenvector
 from ..pca.frames import COLLINEAR_RATIO
 from .check_numba import warm_grid
 from .image import (
@@ -197,9 +197,9 @@ def _tables(
     total = sums.sum(axis=0)
     offset = total[:3] / total[3] if total[3] else np.zeros(3)
     table = np.zeros((height + 1, width + 1, 10))
+    counts = np.zeros((height + 1, width + 1))  # the count channel, what the window search and validity read
     bands(_moments_down, width, points, ranges, offset, table)
-    bands(_sum_across, height, table)
-    counts = np.ascontiguousarray(table[..., 0])  # what the window search and validity read, 8 bytes a pixel
+    bands(_sum_across, height, table, counts)
     reach = np.full((height, width), float(radius)) if range_scale == 0 else np.maximum(ranges * range_scale, radius)
     rows = np.ascontiguousarray(pitch_row, dtype=np.float64)
     cols = np.ascontiguousarray(pitch_col, dtype=np.float64)
@@ -362,24 +362,44 @@ def _ranges(points, ranges, sums, lo, hi):
 def _moments_down(points, ranges, offset, table, lo, hi):
     """The first pass of the moment table, down columns lo..hi: running sums of 1, x, y, z, xx, xy, xz, yy, yz, zz of
     each finite pixel's point minus `offset` (holes add nothing). It walks the rows in memory order, each row's band
-    from the one above, so each column's sums are added in the same order as a walk down it, without its stride."""
+    from the one above, so each column's sums are added in the same order as a walk down it, without its stride. The
+    ten sums are written out one by one: a slice copy and a call per pixel took eight times as long."""
+    ox, oy, oz = offset[0], offset[1], offset[2]
     for r in range(points.shape[0]):
+        above, row = table[r], table[r + 1]
         for c in range(lo, hi):
-            row = table[r + 1, c + 1]
-            row[:] = table[r, c + 1]
+            before, sums = above[c + 1], row[c + 1]
             if np.isfinite(ranges[r, c]):
-                x, y, z = points[r, c, 0] - offset[0], points[r, c, 1] - offset[1], points[r, c, 2] - offset[2]
-                add_moments(row, x, y, z)
+                x, y, z = points[r, c, 0] - ox, points[r, c, 1] - oy, points[r, c, 2] - oz
+                sums[0] = before[0] + 1.0
+                sums[1] = before[1] + x
+                sums[2] = before[2] + y
+                sums[3] = before[3] + z
+                sums[4] = before[4] + x * x
+                sums[5] = before[5] + x * y
+                sums[6] = before[6] + x * z
+                sums[7] = before[7] + y * y
+                sums[8] = before[8] + y * z
+                sums[9] = before[9] + z * z
+            else:
+                for k in range(10):
+                    sums[k] = before[k]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _sum_across(table, lo, hi):
+def _sum_across(table, counts, lo, hi):
+    """The second pass, across rows lo..hi: each row's running sums of the ten channels, in registers, and the count
+    channel copied into `counts` on the way (a strided copy of it afterwards read the whole table again)."""
     for r in range(lo, hi):
-        for j in range(table.shape[2]):
-            running = 0.0
-            for c in range(table.shape[1] - 1):
-                running += table[r + 1, c + 1, j]
-                table[r + 1, c + 1, j] = running
+        row = table[r + 1]
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = 0.0
+        for c in range(table.shape[1] - 1):
+            sums = row[c + 1]
+            s0, s1, s2, s3, s4 = s0 + sums[0], s1 + sums[1], s2 + sums[2], s3 + sums[3], s4 + sums[4]
+            s5, s6, s7, s8, s9 = s5 + sums[5], s6 + sums[6], s7 + sums[7], s8 + sums[8], s9 + sums[9]
+            sums[0], sums[1], sums[2], sums[3], sums[4] = s0, s1, s2, s3, s4
+            sums[5], sums[6], sums[7], sums[8], sums[9] = s5, s6, s7, s8, s9
+            counts[r + 1, c + 1] = s0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
