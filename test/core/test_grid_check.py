@@ -185,3 +185,30 @@ def test_the_compiled_scan_line_check_agrees_with_torch_on_steps_too_short_to_ha
             if expected is not None:
                 assert reference == expected
     assert inspect_grid(torch.from_numpy(fine.reshape(-1, 3)), fine.shape[:2]).scan_lines
+
+
+@pytest.mark.parametrize(
+    ("size", "samples", "holes"),
+    [
+        (1000, 200, 0.3),
+        (1000, 1000, 0.0),
+        (1000, 5000, 0.3),
+        (50, 1, 0.2),
+        (4, 3, 0.0),
+        (40, 7, 1.0),
+        (307200, 200_000, 0.1),
+    ],
+)
+def test_the_compiled_pitch_sample_is_the_one_numpys_indexing_takes(size: int, samples: int, holes: float) -> None:
+    """The pitch quantiles read a sample of the finite chords: every one in memory order up to `samples`, beyond that
+    those at the rounded np.linspace positions (half to even: 4 values, 3 samples takes position 1.5 as 2)."""
+    rng = np.random.default_rng(size + samples)
+    values = rng.random(size)
+    values[rng.random(size) < holes] = np.nan
+    finite = values[np.isfinite(values)]
+    expected = finite
+    if len(finite) > samples:
+        expected = finite[np.round(np.linspace(0, len(finite) - 1, samples)).astype(np.int64)]
+    count, sample = check_numba._sample(values.reshape(-1, 8) if size % 8 == 0 else values.reshape(1, -1), samples)
+    assert count == len(finite)
+    np.testing.assert_array_equal(sample, expected)

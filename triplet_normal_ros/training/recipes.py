@@ -111,10 +111,10 @@ RECIPES = {
     ),
     # The lite checkpoint: the shipped recipe (`scales`) on half the patch (k = 64) and a 256-wide latent, about 6.5x
     # fewer multiply-adds per patch than the default (docs/MODEL.md). Phase (b) is cheap at this width (about 7 s an
-    # epoch on 2 cores), so it runs 120 epochs, until the schedule ends it (with fold frames the plateau rule first
-    # cut the rate near epoch 110; docs/HISTORY.md, "Lite and range with the scale head"). 24 close-range fold frames
-    # join its training clouds: 2 % less hybrid error on fold scenes and 1 % on rooms that eval never scores, and 5 %
-    # less `learned` error on those fold scenes unorganized (docs/HISTORY.md, "Lite with fold frames").
+    # epoch on 2 cores), so it runs 120 epochs, enough: the plateau rule first cuts the rate near epoch 110, and a
+    # run scheduled for 240 reached the same best loss (docs/HISTORY.md, "Lite on a longer schedule"). 24 close-range
+    # fold frames join its training clouds: 2 % less hybrid error on fold scenes and 1 % on rooms that eval never
+    # scores, and 5 % less `learned` error on those fold scenes unorganized (docs/HISTORY.md, "Lite with fold frames").
     "lite": Recipe(
         residual=True,
         loss="relative",

@@ -197,7 +197,8 @@ def _tables(
     total = sums.sum(axis=0)
     offset = total[:3] / total[3] if total[3] else np.zeros(3)
     table = np.zeros((height + 1, width + 1, 10))
-    counts = np.zeros((height + 1, width + 1))  # the count channel, what the window search and validity read
+    # the count channel alone, 8 bytes a pixel: what the window search and validity read
+    counts = np.zeros((height + 1, width + 1))
     bands(_moments_down, width, points, ranges, offset, table)
     bands(_sum_across, height, table, counts)
     reach = np.full((height, width), float(radius)) if range_scale == 0 else np.maximum(ranges * range_scale, radius)
@@ -363,7 +364,7 @@ def _moments_down(points, ranges, offset, table, lo, hi):
     """The first pass of the moment table, down columns lo..hi: running sums of 1, x, y, z, xx, xy, xz, yy, yz, zz of
     each finite pixel's point minus `offset` (holes add nothing). It walks the rows in memory order, each row's band
     from the one above, so each column's sums are added in the same order as a walk down it, without its stride. The
-    ten sums are written out one by one: a slice copy and a call per pixel took eight times as long."""
+    ten sums are written one by one: numba's slice assignment would check for overlap at every pixel."""
     ox, oy, oz = offset[0], offset[1], offset[2]
     for r in range(points.shape[0]):
         above, row = table[r], table[r + 1]
@@ -389,7 +390,7 @@ def _moments_down(points, ranges, offset, table, lo, hi):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _sum_across(table, counts, lo, hi):
     """The second pass, across rows lo..hi: each row's running sums of the ten channels, in registers, and the count
-    channel copied into `counts` on the way (a strided copy of it afterwards read the whole table again)."""
+    channel copied into `counts` on the way, so that no strided pass over the whole table is needed after it."""
     for r in range(lo, hi):
         row = table[r + 1]
         s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = s9 = 0.0
