@@ -19,7 +19,8 @@ import numpy as np
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
+from triplet_normal_ros.io.samples import FRAMES
+from triplet_normal_ros.ros.tools.replay import load_frame
 
 BAGS, CLOUDS, CROP = 6, int(sys.argv[1]) if len(sys.argv) > 1 else 3, (240, 320)
 TOPIC = "/camera/depth/points"

@@ -22,7 +22,8 @@ from triplet_normal_ros.core.pca.frames import masked_covariance, principal_fram
 from triplet_normal_ros.core.search.neighbours import NeighbourIndex
 from triplet_normal_ros.evaluation.evaluate import query_indices, validation_clouds
 from triplet_normal_ros.evaluation.metrics import angles_rad
-from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
+from triplet_normal_ros.io.samples import FRAMES
+from triplet_normal_ros.ros.tools.replay import load_frame
 from triplet_normal_ros.simulation.range_scans import depth_frames, lidar_scans
 
 F_GATE = 10.0

@@ -32,7 +32,8 @@ from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.paths import range_image as hybrid
 from triplet_normal_ros.core.range_image import lattice, survey
 from triplet_normal_ros.evaluation.metrics import angles_rad
-from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
+from triplet_normal_ros.io.samples import FRAMES
+from triplet_normal_ros.ros.tools.replay import load_frame
 from triplet_normal_ros.simulation.range_scans import depth_frames, fold_frames
 
 SEED = 100

@@ -20,8 +20,10 @@ import numpy as np
 
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.evaluation import anchors
+from triplet_normal_ros.evaluation.headlines import NODE_DEFAULT
 from triplet_normal_ros.evaluation.report import tool_block, tool_command, tool_header, update_section
-from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
+from triplet_normal_ros.io.samples import FRAMES
+from triplet_normal_ros.ros.tools.replay import load_frame
 
 SCRIPT = "docs/tools/real_frame_speed.py"
 COLUMNS = (
@@ -29,8 +31,6 @@ COLUMNS = (
     "| --- | ---: | --- | ---: | ---: | ---: |"
 )
 RADIUS = 0.05
-#: The row that is what a node user gets with no parameter set: a range image on a CPU gets `range`.
-NODE_DEFAULT = "hybrid, range (the node's default on a CPU)"
 #: Each timed estimator: its label in the table -> its NormalEstimator options (radius and device are shared).
 METHODS = {
     "pca (window)": {"method": "pca"},

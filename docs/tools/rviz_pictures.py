@@ -28,8 +28,9 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from triplet_normal_ros.core.config import defaults
 from triplet_normal_ros.io.normal_map import write_png
+from triplet_normal_ros.io.samples import FRAMES
 from triplet_normal_ros.ros.tools.node_process import node_env, params_file, start_node, stop_node, wait_for_node
-from triplet_normal_ros.ros.tools.replay import FRAMES, SENSOR_INPUT, Frame, ReplayClient, load_frame
+from triplet_normal_ros.ros.tools.replay import SENSOR_INPUT, Frame, ReplayClient, load_frame
 
 INPUT, OUTPUT = "/rviz_pictures/points", "/rviz_pictures/normals"
 MARKERS, IMAGE = "/rviz_pictures/normals_markers", "/rviz_pictures/normal_image"

@@ -124,7 +124,10 @@ def test_colcon_build_installs_an_executable_node(fixture: str, request: pytest.
 
 def test_the_installed_copy_is_what_runs(install_prefix: Path, ros_env: dict[str, str], tmp_path: Path) -> None:
     """With the install on PYTHONPATH (as setup.bash does), its copy wins over the venv's editable checkout."""
-    code = "import triplet_normal_ros.ros.tools.replay as r; print(r.__file__); print(r.SAMPLE_DIR)"
+    code = (
+        "import triplet_normal_ros.ros.tools.replay as r, triplet_normal_ros.io.samples as s; "
+        "print(r.__file__); print(s.SAMPLE_DIR)"
+    )
     env = installed_env(install_prefix, ros_env)
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=tmp_path)
     module, sample_dir = out.stdout.split()

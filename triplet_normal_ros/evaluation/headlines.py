@@ -13,15 +13,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..core.learned.checkpoint import read_metadata, resolve_checkpoint
+from ..io.samples import FRAMES
 from .range_eval import PCA_WINDOW
 from .report import read_section
 
-#: The real frames real_frame_speed times, in its order, and the range-image sets of eval, with README's names.
-FRAMES = ("frame_20121214T142255", "table_scene_mug")
+#: The range-image sets of eval, with README's names (the real frames, in real_frame_speed's order: `FRAMES`).
 SETS = {"depth": "depth frames of rooms", "fold": "close-range fold frames", "lidar": "32-beam LiDAR scans"}
 #: eval's row labels for the `default` checkpoint, whose rows carry no checkpoint name.
 EVAL_DEFAULT = {"learned": "learned", "hybrid": "hybrid (F > 10, bend > 0.03)"}
 EVAL_PCA_WINDOW, EVAL_PCA_POOL = PCA_WINDOW, "PCA, k = 512 (the learned pool)"
+#: The real-frame row of what a node user gets with no parameter set (a range image on a CPU gets `range`); the
+#: speed tool writes it and the tables read it.
 NODE_DEFAULT = "hybrid, range (the node's default on a CPU)"
 
 

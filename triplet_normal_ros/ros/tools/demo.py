@@ -23,8 +23,9 @@ import numpy as np
 from ...core.config import defaults
 from ...io.normal_map import normals_to_rgb, write_png
 from ...io.pointcloud2 import NORMAL_FIELDS, read_field
+from ...io.samples import FRAMES
 from .node_process import node_env, params_file, start_node, stop_node, wait_for_node
-from .replay import FRAMES, SENSOR_INPUT, Frame, ReplayClient, load_frame
+from .replay import SENSOR_INPUT, Frame, ReplayClient, load_frame
 
 INPUT, OUTPUT = "/demo/camera/depth/points", "/demo/camera/depth/normals"
 RADIUS = defaults.RADIUS

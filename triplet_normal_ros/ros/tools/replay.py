@@ -12,8 +12,6 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
-from importlib import resources
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -28,12 +26,9 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
 from ...io.pointcloud2 import make_cloud
+from ...io.samples import FRAMES, sample_arrays
 from ..transport import choose_profile
 
-#: The shipped frames, as package data (the same lookup from a checkout, a venv or a colcon install).
-SAMPLE_DIR = Path(str(resources.files("triplet_normal_ros") / "sample_data"))
-#: The shipped frames (PCL test data, BSD; see sample_data/ATTRIBUTION.md).
-FRAMES = ("frame_20121214T142255", "table_scene_mug")
 #: frame_id of replayed clouds: the optical frame, where the sensor (the default viewpoint) is the origin.
 FRAME_ID = "camera_depth_optical_frame"
 #: pcl::PointXYZRGB as a PointCloud2: 16-byte aligned xyz and rgb in 32-byte points.
@@ -83,13 +78,8 @@ class Frame:
 
 
 def load_frame(name: str) -> Frame:
-    """One shipped frame by name (see :data:`FRAMES`)."""
-    path = SAMPLE_DIR / f"{name}.npz"
-    if not path.is_file():
-        raise FileNotFoundError(f"no sample frame {name!r} (have: {', '.join(FRAMES)})")
-    with np.load(path) as data:
-        xyz = np.stack([data["x"], data["y"], data["z"]], axis=-1).astype(np.float32)
-        return Frame(name, xyz, data["rgb"].astype(np.uint32))
+    """One shipped frame by name (see `io.samples.FRAMES`)."""
+    return Frame(name, *sample_arrays(name))
 
 
 class ReplayClient:
