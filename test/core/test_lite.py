@@ -57,8 +57,8 @@ def test_lite_is_at_least_five_times_cheaper_than_default():
 @pytest.mark.parametrize("tilt", [0.0, 0.3])
 def test_lite_estimator_finds_a_plane_normal(tilt: float):
     """End to end through NormalEstimator by name, on full discs of a noiseless plane. The residual head still nudges
-    flat patches (measured: mean 0.76°, max 1.9°; the default checkpoint 0.21° and 0.65°), so the bounds are loose
-    enough for that and tight enough to catch a network that is not starting from the PCA normal."""
+    flat patches a little (measured: mean 0.08°, max 0.32°, at both tilts; the default checkpoint 0.10° and 0.30°), so
+    the bounds leave three times that and still catch a network that is not starting from the PCA normal."""
     rng = np.random.default_rng(0)
     xy = rng.uniform(-1, 1, (4000, 2))
     points = np.column_stack([xy, tilt * xy[:, 0]])
@@ -68,5 +68,5 @@ def test_lite_estimator_finds_a_plane_normal(tilt: float):
     assert estimator.k == LITE_K
     normals, _ = estimator.estimate(points, interior)
     degrees = np.degrees(np.arccos(np.clip(np.abs(normals @ truth), 0, 1)))
-    assert degrees.max() < 3.0
-    assert degrees.mean() < 1.5
+    assert degrees.max() < 1.0
+    assert degrees.mean() < 0.25
