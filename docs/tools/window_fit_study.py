@@ -27,7 +27,7 @@ from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.range_image.check import range_pitch
 from triplet_normal_ros.core.range_image.image import MomentImage, ray_noise_normal
 from triplet_normal_ros.evaluation.metrics import angles_rad
-from triplet_normal_ros.evaluation.range_eval import SETS, _near_edge
+from triplet_normal_ros.evaluation.range_eval import SETS, edge_mask
 from triplet_normal_ros.simulation import range_scans
 
 FRAMES = {"depth": 3, "fold": 6, "lidar": 3}
@@ -63,7 +63,7 @@ def _score(kind: str, frame) -> dict[str, tuple[float, float]]:
     points = frame.points.reshape(-1, 3).astype(np.float64)
     truth = frame.normals.reshape(-1, 3)
     query = np.sort(np.random.default_rng(0).choice(np.flatnonzero(frame.valid.reshape(-1)), QUERIES, replace=False))
-    edge = _near_edge(frame, spec.radius)[query]
+    edge = edge_mask(frame, spec.radius)[query]
     cloud = torch.from_numpy(points)
     fit = MomentImage(cloud, shape, range_pitch(cloud, shape)).pca(spec.radius, spec.range_scale)
     answered = fit.valid.numpy()

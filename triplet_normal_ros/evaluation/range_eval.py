@@ -141,7 +141,7 @@ def evaluate_set(
         valid = np.flatnonzero(frame.valid.reshape(-1))
         rng = np.random.default_rng(QUERY_SEED)
         query = np.sort(rng.choice(valid, min(per_frame, len(valid)), replace=False))
-        edge = _near_edge(frame, spec.radius)[query]
+        edge = edge_mask(frame, spec.radius)[query]
         summary["queries"] += len(query)
         summary["near_edge"] += int(edge.sum())
         for score, estimator in zip(scores, estimators.values(), strict=True):
@@ -155,7 +155,7 @@ def evaluate_set(
     return scores, summary
 
 
-def _near_edge(frame, radius: float) -> np.ndarray:
+def edge_mask(frame, radius: float) -> np.ndarray:
     """The frame's own mask when it was made for this radius, else recomputed from its face ids at `radius`."""
     from ..simulation.edges import EDGE_RADIUS, near_edges
 
