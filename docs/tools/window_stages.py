@@ -84,7 +84,7 @@ def _census(ranges, reach, pitch_row, pitch_col, col_walls, row_walls, pixels):
             if np.isnan(ranges[r, c]):
                 continue
             answered += 1
-            half_row, half_col = image_numba._halves(ranges, reach, pitch_row, pitch_col, r, c, pixels)
+            half_row, half_col = image_numba._half_widths(ranges, reach, pitch_row, pitch_col, r, c, pixels)
             level = image_numba._largest_clear(
                 r, c, half_row, half_col, 1, 1, 1, 1, col_walls, row_walls, height, width
             )[4]

@@ -322,7 +322,7 @@ def _normals(
             if np.isnan(ranges[r, c]):
                 _finish_one(0.0, 0.0, 0.0, eigvals, False, normals, curvature, i)
                 continue
-            half_row, half_col = _halves(ranges, reach, pitch_row, pitch_col, r, c, pixels)
+            half_row, half_col = _half_widths(ranges, reach, pitch_row, pitch_col, r, c, pixels)
             top, bottom, left, right = _window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width)
             k, mx, my, mz, c0, c1, c2, c3, c4, c5 = _box_moments(table, top, bottom, left, right)
             smallest_eigenvector(c0, c1, c2, c3, c4, c5, eigvals, normal)
@@ -568,7 +568,7 @@ def _pixels(
     for r in range(lo, hi):
         for c in range(width):
             i = r * width + c
-            half_row, half_col = _halves(ranges, reach, pitch_row, pitch_col, r, c, 0.0)
+            half_row, half_col = _half_widths(ranges, reach, pitch_row, pitch_col, r, c, 0.0)
             if slope.shape[0]:
                 sx, sy, sz = slope[i, 0], slope[i, 1], slope[i, 2]
                 if sx == 0.0 and sy == 0.0 and sz == 0.0:
@@ -590,7 +590,7 @@ def _pixels(
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _halves(ranges, reach, pitch_row, pitch_col, r, c, pixels):
+def _half_widths(ranges, reach, pitch_row, pitch_col, r, c, pixels):
     """The window's half-widths in pixels per axis from the ball's angular radius, with `pixels` > 0 capped so that
     the window holds about that many (`MomentImage._half_widths`; the cap is `image.window_angle_cap`'s)."""
     height, width = ranges.shape

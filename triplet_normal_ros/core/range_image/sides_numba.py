@@ -10,7 +10,7 @@ from numba import njit
 from ..bands import bands
 from ..pca.eigen_numba import smallest_eigenvector
 from . import image_numba
-from .image_numba import _SIDES, _box_moments, _halves, _largest_clear, _ray_noise, _valid_fit
+from .image_numba import _SIDES, _box_moments, _half_widths, _largest_clear, _ray_noise, _valid_fit
 from .survey import PART_SPAN
 
 
@@ -49,7 +49,7 @@ def _snap(
         p = pixels[i]
         r, c = p // width, p % width
         px, py, pz = points[p, 0] - offset[0], points[p, 1] - offset[1], points[p, 2] - offset[2]
-        half_row, half_col = _halves(ranges, reach, pitch_row, pitch_col, r, c, 0.0)
+        half_row, half_col = _half_widths(ranges, reach, pitch_row, pitch_col, r, c, 0.0)
         nearest, bx, by, bz = cos_snap, ax, ay, az
         for s in range(len(_SIDES)):
             top, bottom, left, right, _ = _largest_clear(
