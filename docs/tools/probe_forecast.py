@@ -13,7 +13,8 @@ import numpy as np
 
 from triplet_normal_ros.core import throughput
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
+from triplet_normal_ros.io.samples import FRAMES
+from triplet_normal_ros.ros.tools.replay import load_frame
 
 RADIUS = 0.05
 #: Each estimator: its label in the table -> its NormalEstimator options (radius and device are shared).

@@ -34,7 +34,7 @@ RADIUS = 0.05
 #: Each timed estimator: its label in the table -> its NormalEstimator options (radius and device are shared).
 METHODS = {
     "pca (window)": {"method": "pca"},
-    "hybrid, range (the node's default on a CPU)": {"method": "hybrid"},
+    NODE_DEFAULT: {"method": "hybrid"},
     "hybrid, lite": {"method": "hybrid", "checkpoint": "lite"},
     "hybrid, default checkpoint": {"method": "hybrid", "checkpoint": "default"},
 }

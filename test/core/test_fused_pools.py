@@ -11,7 +11,8 @@ import torch
 from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS, POOL_FACTOR
 from triplet_normal_ros.core.learned.patches import build_patches
 from triplet_normal_ros.core.search.neighbours import NeighbourIndex
-from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
+from triplet_normal_ros.io.samples import FRAMES
+from triplet_normal_ros.ros.tools.replay import load_frame
 from triplet_normal_ros.simulation.depth_camera import depth_frame
 
 K = 64

@@ -12,7 +12,8 @@ from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS, POOL_FACTOR
 from triplet_normal_ros.core.learned import patches_numba, scales
 from triplet_normal_ros.core.learned import scales_numba as fused_scales
 from triplet_normal_ros.core.search.neighbours import NeighbourIndex
-from triplet_normal_ros.ros.tools.replay import FRAMES, load_frame
+from triplet_normal_ros.io.samples import FRAMES
+from triplet_normal_ros.ros.tools.replay import load_frame
 from triplet_normal_ros.simulation.depth_camera import depth_frame
 
 #: The default checkpoint's scales and inlier seeds, and its patch size.

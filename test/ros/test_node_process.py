@@ -132,6 +132,7 @@ def test_the_installed_copy_is_what_runs(install_prefix: Path, ros_env: dict[str
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=tmp_path)
     module, sample_dir = out.stdout.split()
     assert Path(module).is_relative_to(site_packages(install_prefix))
+    assert Path(sample_dir).is_relative_to(site_packages(install_prefix))
     assert sorted(p.name for p in Path(sample_dir).glob("*.npz")) == [
         "frame_20121214T142255.npz",
         "table_scene_mug.npz",

@@ -102,10 +102,11 @@ def _tree_pca(
 
 @njit(cache=True, nogil=True, inline="always")
 def _single(ids, places, count, width):
-    """`search.pools.ScanLines.single` of one pool, its compiled twin: whether the pool ids[places[:count]] lies within one
-    image row or one image column of an image `width` pixels wide. The torch one also counts a short pool's padding
-    as the centre's pixel, which changes nothing here: a pool of fewer than k points holds every point of the ball,
-    its centre among them. Most pools leave both lines within their first few points, so the loop stops there."""
+    """`search.pools.ScanLines.single` of one pool, its compiled twin: whether the pool ids[places[:count]] lies
+    within one image row or one image column of an image `width` pixels wide. The torch one also counts a short
+    pool's padding as the centre's pixel, which changes nothing here: a pool of fewer than k points holds every point
+    of the ball, its centre among them. Most pools leave both lines within their first few points, so the loop stops
+    there."""
     row0, col0 = divmod(ids[places[0]], width)
     same_row = same_col = True
     for a in range(1, count):

@@ -168,7 +168,7 @@ class MomentImage:
 def window_angle_cap(pixels: float, pitch_row: torch.Tensor, pitch_col: torch.Tensor) -> torch.Tensor:
     """The angular radius whose window holds `pixels` pixels: a window of half-widths a / pitch_row and a / pitch_col
     spans about (2a / pitch_row) (2a / pitch_col) pixels, so a = sqrt(pixels · pitch_row · pitch_col) / 2, in the
-    order the compiled twin (`image_numba._halves`) computes it, so both round to the same half-widths."""
+    order the compiled twin (`image_numba._half_widths`) computes it, so both round to the same half-widths."""
     return torch.sqrt(pixels * pitch_row * pitch_col) / 2
 
 
