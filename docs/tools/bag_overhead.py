@@ -27,19 +27,19 @@ import triplet_normal_ros.core.estimator  # noqa: F401  (torch is imported befor
 from triplet_normal_ros.cli.main import main
 from triplet_normal_ros.evaluation.report import tool_block, tool_command, tool_header, update_section
 from triplet_normal_ros.io.bags import TYPESTORE
-from triplet_normal_ros.io.samples import FRAMES, SAMPLE_DIR
+from triplet_normal_ros.io.samples import FRAMES, sample_arrays
 
 TOPIC = "/camera/depth_registered/points"
 
 
 def frame_cloud(name: str, stamp_ns: int):
     """One shipped frame's layout and colours as a rosbags PointCloud2, every xyz NaN: little-endian, 480 x 640."""
-    with np.load(SAMPLE_DIR / f"{name}.npz") as data:
-        h, w = data["x"].shape
-        packed = np.empty((h, w), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
-        for key in ("x", "y", "z"):
-            packed[key] = np.nan
-        packed["rgb"] = data["rgb"]
+    _, rgb = sample_arrays(name)
+    h, w = rgb.shape
+    packed = np.empty((h, w), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
+    for key in ("x", "y", "z"):
+        packed[key] = np.nan
+    packed["rgb"] = rgb
     field = TYPESTORE.types["sensor_msgs/msg/PointField"]
     time_msg = TYPESTORE.types["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
     return TYPESTORE.types["sensor_msgs/msg/PointCloud2"](

@@ -148,38 +148,23 @@ def _chords(rays, out, step_row, step_col, lo, hi):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _sample(values, samples):
     """How many of `values` are finite, and those values in memory order, or where there are more than `samples`, those
-    at the rounded positions np.linspace(0, n - 1, samples): the sample numpy's boolean and fancy indexing would take,
-    in two passes without the mask or the index arrays."""
+    at np.linspace(0, n - 1, samples) rounded half to even (its j-th point is j · step, its last n - 1 exactly, its
+    only point 0): numpy's boolean and fancy indexing, without the mask or the index arrays."""
     flat = values.reshape(-1)
+    finite = np.empty(len(flat))
     n = 0
     for v in flat:
-        n += np.isfinite(v)
-    out = np.empty(min(n, samples))
-    if n == 0:
-        return n, out
+        if np.isfinite(v):
+            finite[n] = v
+            n += 1
+    if n <= samples:
+        return n, finite[:n]
+    out = np.empty(samples)
     step = (n - 1) / (samples - 1) if samples > 1 else 0.0
-    taken = seen = 0
-    wanted = 0
-    for v in flat:
-        if not np.isfinite(v):
-            continue
-        while taken < len(out) and wanted == seen:
-            out[taken] = v
-            taken += 1
-            wanted = _position(taken, len(out), n, samples, step)
-        seen += 1
+    for j in range(samples - 1):
+        out[j] = finite[np.int64(np.round(j * step))]
+    out[samples - 1] = finite[n - 1] if samples > 1 else finite[0]
     return n, out
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _position(j, m, n, samples, step):
-    """The index of the j-th sampled finite value of n: j itself when all are kept, else np.linspace's j-th point
-    (j · step, the last exactly n - 1), rounded half to even."""
-    if m == n:
-        return j
-    if j == samples - 1:
-        return n - 1
-    return np.int64(np.round(j * step))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
