@@ -20,11 +20,14 @@ from triplet_normal_ros.core.config.conventions import (
     PCA_DEFAULT_K,
 )
 from triplet_normal_ros.core.estimator import NormalEstimator
+from triplet_normal_ros.core.pca.eigen import EIGEN_GAP
+from triplet_normal_ros.core.pca.pools import pool_normals
 from triplet_normal_ros.core.range_image.check import range_pitch
 from triplet_normal_ros.core.range_image.image import MomentImage, ray_noise_normal
 from triplet_normal_ros.core.range_image.image_numba import CompiledImage
 from triplet_normal_ros.core.range_image.sides import snap_to_sides
 from triplet_normal_ros.core.range_image.survey import survey_and_cue, survey_on_slope, window_z
+from triplet_normal_ros.core.search.pools import ScanLines
 from triplet_normal_ros.evaluation.metrics import msae
 from triplet_normal_ros.io.bags import InputBag, decode_cloud
 from triplet_normal_ros.io.pointcloud2 import read_xyz
@@ -301,3 +304,33 @@ def test_the_compiled_windows_of_k_pixels_are_the_torch_ones(name: str) -> None:
     np.testing.assert_array_equal(np.isfinite(normals).all(axis=1), answered)
     reference = ray_noise_normal(fit).numpy()[answered]
     assert np.abs((reference * normals[answered]).sum(axis=1)).min() > 1 - 1e-6
+
+
+@pytest.mark.parametrize("name", sorted(FRAMES))
+def test_the_compiled_ball_pools_are_the_torch_ones(name: str) -> None:
+    """`pca`'s pools where walls cut a window below a plane (`MomentImage.ball_pool`): the same points in both, at
+    the default k and at a k small enough that most balls hold more (the nearest k, equal distances by id); and the
+    compiled loop that sums them as it builds them (`CompiledImage.pool_normals`) answers as torch's pool PCA and
+    scan-line test do over the torch pools."""
+    points, shape, radius, scale, _ = FRAMES[name]
+    cloud = torch.from_numpy(points)
+    pitch = range_pitch(cloud, shape)
+    compiled = CompiledImage(cloud, shape, pitch)
+    normals, _ = compiled.normals(radius, scale, PCA_DEFAULT_K)
+    finite = np.isfinite(points).all(axis=1)
+    cut = np.flatnonzero(finite & ~np.isfinite(normals).all(axis=1))
+    rows = torch.from_numpy(np.union1d(cut, np.flatnonzero(finite)[::4999]))
+    reference = MomentImage(cloud, shape, pitch)
+    for size in (PCA_DEFAULT_K, 12):
+        ours, theirs = compiled.ball_pool(rows, radius, size), reference.ball_pool(rows, radius, size)
+        assert torch.equal(ours.sort(dim=1).values, theirs.sort(dim=1).values)
+        if size == PCA_DEFAULT_K:
+            assert bool(((theirs >= 0).sum(dim=1) > 12).any())  # so at 12 some pools are the nearest of more
+    normal, eigvals, valid = compiled.pool_normals(rows.numpy(), radius, PCA_DEFAULT_K, EIGEN_GAP, shape[1])
+    pool = reference.ball_pool(rows, radius, PCA_DEFAULT_K)
+    ref_normal, ref_eigvals, ref_valid = pool_normals(cloud, cloud[rows], pool, rows, compiled=False)
+    ref_valid = ref_valid.numpy() & ~ScanLines(shape, torch.device("cpu")).single(pool, rows).numpy()
+    np.testing.assert_array_equal(valid, ref_valid)
+    assert ref_valid.any()
+    assert np.abs((normal[valid] * ref_normal.numpy()[valid]).sum(axis=1)).min() > 1 - 1e-9
+    np.testing.assert_allclose(eigvals[valid], ref_eigvals.numpy()[valid], rtol=1e-6, atol=1e-15)

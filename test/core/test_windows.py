@@ -16,6 +16,7 @@ from triplet_normal_ros.core.range_image import image as windows
 from triplet_normal_ros.core.range_image import survey as hybrid
 from triplet_normal_ros.core.range_image.check import range_pitch
 from triplet_normal_ros.core.range_image.image import ray_noise_normal
+from triplet_normal_ros.core.range_image.image_numba import CompiledImage
 
 HEIGHT, WIDTH, FOCAL = 60, 80, 70.0
 
@@ -397,3 +398,35 @@ def test_a_window_of_k_pixels_keeps_a_close_fold_sharper_than_the_whole_ball() -
     whole = ray_noise_normal(image.pca(0.05)).numpy()
     assert errors["window"] < 0.5 * msae(whole[near_fold], exact[near_fold])
     assert errors["window"] < 2 * errors["kdtree"]
+
+
+def _strip_before_a_wall(width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(points, exact normals, strip mask): a tilted board seen as a steep strip `width` pixels across (the pixels
+    with |u + 2v - 60| < width / 2) 1.5 m in front of a wall at 3 m: the depth jumps on both of the strip's sides."""
+    wall = np.array([0.0, 0.0, -1.0])
+    board = np.array([0.3, 0.2, -1.0]) / np.linalg.norm([0.3, 0.2, -1.0])
+    v, u = np.mgrid[0:HEIGHT, 0:WIDTH]
+    strip = 2 * np.abs(u + 2 * v - 60) < width
+    depth = np.where(strip, plane_depth(board, -1.5), plane_depth(wall, -3.0))
+    exact = np.where(strip.reshape(-1, 1), board, wall)
+    return pinhole(depth), exact, strip.reshape(-1)
+
+
+def test_pca_answers_from_the_ball_where_walls_cut_every_window_below_a_plane() -> None:
+    """Beside a steep strip no window of a pixel's box shape clears the walls on both its sides and still spans a
+    plane; the ball's points among the pixels around it do, so `pca` answers there as it would without an image.
+    A strip one pixel wide is a line of points, a cable: it stays NaN, as its ball holds no plane either."""
+    for width, strip_answered in ((5, True), (1, False)):
+        points, exact, strip = _strip_before_a_wall(width)
+        cloud = torch.from_numpy(points)
+        windows_alone, _ = CompiledImage(cloud, (HEIGHT, WIDTH), range_pitch(cloud, (HEIGHT, WIDTH))).normals(
+            0.15, 0.0, PCA_DEFAULT_K
+        )
+        estimator = NormalEstimator("pca", radius=0.15, device="cpu")
+        normals, curvature = estimator.estimate(points, shape=(HEIGHT, WIDTH))
+        assert estimator.last_run.search == "window"
+        answered = np.isfinite(normals).all(axis=1)
+        assert (~np.isfinite(windows_alone).all(axis=1)).sum() > answered.size - answered.sum()
+        assert answered[~strip].all() and bool(answered[strip].all()) is strip_answered
+        assert angle_error(normals[answered], exact[answered]).max() < 1e-4
+        assert np.array_equal(np.isfinite(curvature), answered)

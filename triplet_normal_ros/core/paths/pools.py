@@ -56,10 +56,11 @@ def over_pools(
     """For each chunk of the `todo` positions of `query`: (positions, normals, curvature) from `kernel` over the
     chunk's pools, NaN where an organized cloud's pool lies on one scan line (`lines`); raises EstimationCancelled
     between chunks once the call is cancelled. `learned` and `hybrid` also get the plane of the whole ball
-    (`pool_and_ball`), where that is larger than the network's pool. `pca` over the KD-tree on a CPU searches and
-    sums in one loop (`tree_pca`), the scan-line test too, and stores no pools."""
+    (`pool_and_ball`), where that is larger than the network's pool. `pca` over a search that sums its own pools on
+    a CPU (`PoolSearch.sums_pca`: the KD-tree's, a range image's balls) searches and sums in one loop (`tree_pca`),
+    the scan-line test too, and stores no pools."""
     s = call.settings
-    fused = kernel is pca_kernel and search.name == "kdtree" and call.compiled
+    fused = kernel is pca_kernel and search.sums_pca and call.compiled
     whole_ball = kernel in (hybrid_kernel, learned_kernel) and call.ball_size() > call.pool_size()
     chunk = max(chunk, TREE_PCA_CHUNK) if fused else chunk
     for radius, group in radius_groups(s.radius, s.range_scale, cloud, query, todo):
@@ -104,8 +105,9 @@ def pca_kernel(call: Call, cloud, centres, pool, rows, _radius, _ball=None) -> t
 def tree_pca(
     call: Call, search: PoolSearch, rows: np.ndarray, radius: float, width: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """`pca_kernel` over the KD-tree's pools around cloud `rows` on a CPU, the search and the PCA in one compiled loop
-    per point (`pools_numba.tree_normals`), with an organized cloud's `width` the scan-line test as well (0: none):
+    """`pca_kernel` over the search's pools around cloud `rows` on a CPU, the search and the PCA in one compiled loop
+    per point (the KD-tree's `pools_numba.tree_normals`, a range image's `CompiledImage.pool_normals`), with an
+    organized cloud's `width` the scan-line test as well (0: none):
     the same answers without storing the pools. The loop is timed as "neighbours", the curvature and the validity
     after it as "pca"."""
     with call.timed("neighbours"):

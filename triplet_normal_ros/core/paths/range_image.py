@@ -21,7 +21,7 @@ from ..range_image.sides import snap_to_sides
 from ..range_image.survey import PART_SPAN, opens, survey_and_cue, survey_on_slope
 from ..search.pools import PoolSearch, ScanLines, open_search
 from .call import CHUNK, Call, Cloud, finish
-from .pools import hybrid_kernel, network_kernel, over_pools
+from .pools import hybrid_kernel, network_kernel, over_pools, pca_kernel
 
 
 def range_image_path(
@@ -35,7 +35,8 @@ def range_image_path(
         image = image_type(cloud.tensor, cloud.shape, cloud.pitch)
     if plan.kernel == "pca":
         with call.timed(stage):
-            return window_pca(call, image, query, progress)
+            normals, curvature, finite = window_pca(call, image, query, progress)
+        return ball_where_cut(call, image, cloud.tensor, query, finite, normals, curvature)
     lines = ScanLines(cloud.shape, call.device)
 
     def open_pools() -> PoolSearch:
@@ -44,12 +45,15 @@ def range_image_path(
     return window_hybrid(call, image, cloud.tensor, query, open_pools, lines, progress)
 
 
-def window_pca(call: Call, image: MomentImage, query: np.ndarray, progress) -> tuple[np.ndarray, np.ndarray]:
+def window_pca(
+    call: Call, image: MomentImage, query: np.ndarray, progress
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every pixel's window plane at once, then the query's rows (`range_image.image`; compiled, one pass per pixel to
-    the finished answer). The plane is the window's ray-noise plane (`image.ray_noise_normal`): PCA's normal on a
-    noise-free window, and on a noisy one the normal PCA tips toward the ray (docs/HISTORY.md, "Window `pca` with the
-    ray-noise plane"). The curvature is PCA's surface variation of the window. A window holds about k pixels at most,
-    the nearest k points as the pool path takes them (docs/HISTORY.md, "Window `pca` at k pixels")."""
+    the finished answer), and which of them hold a point. The plane is the window's ray-noise plane
+    (`image.ray_noise_normal`): PCA's normal on a noise-free window, and on a noisy one the normal PCA tips toward the
+    ray (docs/HISTORY.md, "Window `pca` with the ray-noise plane"). The curvature is PCA's surface variation of the
+    window. A window holds about k pixels at most, the nearest k points as the pool path takes them (docs/HISTORY.md,
+    "Window `pca` at k pixels")."""
     s = call.settings
     if image.compiled:
         normals, curvature = image.normals(s.radius, s.range_scale, call.pool_size())
@@ -59,10 +63,50 @@ def window_pca(call: Call, image: MomentImage, query: np.ndarray, progress) -> t
         finite = image.finite.reshape(-1)
         normals, curvature = finish(ray_noise_normal(fit), surface_variation(fit.eigvals), fit.valid & finite)
     whole = len(query) == len(finite) and bool(query[0] == 0) and bool((np.diff(query) == 1).all())
-    call.run.estimated = int(finite.sum()) if whole else int(finite[torch.from_numpy(query)].sum())
+    finite = finite.cpu().numpy() if whole else finite.cpu().numpy()[query]
+    call.run.estimated = int(np.count_nonzero(finite))
     if progress is not None:
         progress(len(query))
-    return (normals, curvature) if whole else (normals[query], curvature[query])
+    return (normals, curvature, finite) if whole else (normals[query], curvature[query], finite)
+
+
+def ball_where_cut(
+    call: Call,
+    image: MomentImage,
+    cloud: torch.Tensor,
+    query: np.ndarray,
+    finite: np.ndarray,
+    normals: np.ndarray,
+    curvature: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`pca`'s answers where walls cut a window below a plane (too few points, one image row or column, or a line):
+    PCA of the ball's points among the pixels of a box no wall cuts (`MomentImage.ball_pool`), as the pool path takes
+    it, with its scan-line and plane tests, so that such a point gets the answer `pca` gives it without an image,
+    and NaN only where the ball holds no plane either. A thin post or a stair nose seen edge-on, whose window the
+    depth jumps on both sides cut to a sliver, still lies within the ball of its neighbours (docs/HISTORY.md,
+    "Window `pca` where walls cut the window")."""
+    todo = np.flatnonzero(finite & np.isnan(normals[:, 0]))
+    if len(todo) == 0:
+        return normals, curvature
+    lines = ScanLines((image.height, image.width), call.device)
+    for out, normal, curve in over_pools(call, _BallPools(image), cloud, query, todo, pca_kernel, CHUNK, lines):
+        normals[out], curvature[out] = normal, curve
+    return normals, curvature
+
+
+class _BallPools(PoolSearch):
+    """`MomentImage.ball_pool` as a pool search, for `over_pools`; the compiled image also sums `pca`'s pools as it
+    builds them (`CompiledImage.pool_normals`)."""
+
+    name = "window ball"
+    nearest_first = False  # a box's points in the box's order where the ball holds no more than the pool
+
+    def __init__(self, image: MomentImage) -> None:
+        self.index = image
+        self.sums_pca = image.compiled
+
+    def pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
+        return self.index.ball_pool(rows, radius, size)
 
 
 def window_hybrid(

@@ -81,7 +81,7 @@ def _tree_pca(
 ):  # fmt: skip
     """`_pool_pca` of each query's nearest k (`kdtree._nearest_one`), its moments summed from the tree's own points
     while the search has them in cache, for the queries at[lo:hi] into the rows which[lo:hi]; with a `width`, not
-    valid where the pool lies on one scan line (`_single`)."""
+    valid where the pool lies on one scan line (`single`)."""
     scratch = scratch_for(k, leaf_size)
     cov = np.empty((3, 3))
     sums = np.empty(10)
@@ -97,11 +97,11 @@ def _tree_pca(
             add_moments(sums, cols[0, t] - x, cols[1, t] - y, cols[2, t] - z)
         valid[q] = moments_pca(sums, gap, cov, eigvals[q], normal[q])
         if width > 0 and valid[q]:
-            valid[q] = not _single(ids, scratch.best_pos, count, width)
+            valid[q] = not single(ids, scratch.best_pos, count, width)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _single(ids, places, count, width):
+def single(ids, places, count, width):
     """`search.pools.ScanLines.single` of one pool, its compiled twin: whether the pool ids[places[:count]] lies
     within one image row or one image column of an image `width` pixels wide. The torch one also counts a short
     pool's padding as the centre's pixel, which changes nothing here: a pool of fewer than k points holds every point

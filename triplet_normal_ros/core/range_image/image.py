@@ -91,6 +91,7 @@ class MomentImage:
         self.height, self.width = shape
         self.device = cloud.device
         points = cloud.to(torch.float64).view(self.height, self.width, 3)
+        self.cloud = points  # as given, for `ball_pool`'s distances
         self.finite = torch.isfinite(points).all(dim=-1)
         self.pitch_row, self.pitch_col = pitch
         self.range = torch.where(self.finite, points.norm(dim=-1), torch.nan)
@@ -163,6 +164,46 @@ class MomentImage:
         rows = torch.nan_to_num(torch.round(angle / per_row), nan=0.0).clamp(0, float(self.height))
         cols = torch.nan_to_num(torch.round(angle / per_col), nan=0.0).clamp(0, float(self.width))
         return rows.to(torch.int64), cols.to(torch.int64)
+
+    def ball_pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
+        """(M, size) int64, -1 padded: the points strictly inside the ball of `radius` around each of the flat pixels
+        `rows`, among the pixels of a box that no wall cuts, the nearest `size` of them (equal distances by id).
+
+        The pool of `pca`'s pixels whose window walls cut below a plane (`paths.range_image.window_pca`). The box's
+        half-widths are the ball's angular radius over each axis' pitch (`ball_box`), so the ball within it is what
+        the pool path would search, and it spans about `size` pixels at most: a KD-tree built for a few hundred
+        pixels a frame would cost more than the windows."""
+        height, width = self.height, self.width
+        half_row, half_col = self.ball_box(rows, radius, size)
+        if len(rows) == 0:
+            return torch.full((0, size), -1, dtype=torch.int64, device=self.device)
+        steps_row = torch.arange(-int(half_row.max()), int(half_row.max()) + 1, device=self.device)
+        steps_col = torch.arange(-int(half_col.max()), int(half_col.max()) + 1, device=self.device)
+        row = (rows // width).view(-1, 1, 1) + steps_row.view(1, -1, 1)
+        col = (rows % width).view(-1, 1, 1) + steps_col.view(1, 1, -1)
+        inside = (steps_row.abs().view(1, -1, 1) <= half_row.view(-1, 1, 1)) & (row >= 0) & (row < height)
+        inside = inside & (steps_col.abs().view(1, 1, -1) <= half_col.view(-1, 1, 1)) & (col >= 0) & (col < width)
+        ids = torch.where(inside, row * width + col, 0).view(len(rows), -1)
+        flat = self.cloud.view(-1, 3)
+        delta = flat[ids] - flat[rows].unsqueeze(1)
+        dx, dy, dz = delta.unbind(dim=-1)
+        distance = dx * dx + dy * dy + dz * dz  # in the compiled twin's order, so both keep the same points
+        keep = inside.view(len(rows), -1) & (distance < radius * radius)  # NaN (a hole) compares False
+        distance = torch.where(keep, distance, torch.inf)
+        order = torch.sort(distance, dim=1, stable=True).indices[:, :size]  # ids ascend along each box: ties by id
+        pool = torch.where(keep.gather(1, order), ids.gather(1, order), -1)
+        return torch.nn.functional.pad(pool, (0, size - pool.shape[1]), value=-1)
+
+    def ball_box(self, rows: torch.Tensor, radius: float, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """(half_row, half_col) int64 of `ball_pool`'s boxes around the flat pixels `rows`: the ball's angular
+        radius asin(radius / range), capped at `window_angle_cap`'s for `size` pixels, over each axis' pitch."""
+        row, col = rows // self.width, rows % self.width
+        per_row, per_col = self.pitch_row.to(torch.float64)[row], self.pitch_col.to(torch.float64)[col]
+        angle = torch.asin((radius / self.range.view(-1)[rows]).clamp(max=1.0))
+        angle = torch.minimum(angle, window_angle_cap(size, per_row, per_col))
+        half_row = torch.nan_to_num(torch.round(angle / per_row), nan=0.0).clamp(0, float(self.height))
+        half_col = torch.nan_to_num(torch.round(angle / per_col), nan=0.0).clamp(0, float(self.width))
+        return half_row.to(torch.int64), half_col.to(torch.int64)
 
 
 def window_angle_cap(pixels: float, pitch_row: torch.Tensor, pitch_col: torch.Tensor) -> torch.Tensor:

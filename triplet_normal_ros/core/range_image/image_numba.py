@@ -24,8 +24,9 @@ from numba import njit
 
 from ..bands import bands
 from ..config.conventions import MIN_NEIGHBOURS
-from ..pca.eigen_numba import smallest_eigenvector
+from ..pca.eigen_numba import add_moments, moments_pca, smallest_eigenvector
 from ..pca.frames import COLLINEAR_RATIO
+from ..pca.pools_numba import single
 from .check_numba import warm_grid
 from .image import (
     AREA_MATCH,
@@ -117,6 +118,35 @@ class CompiledImage:
         self.fit = {"ranges": ranges}
         return normals, curvature
 
+    def ball_pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
+        """`MomentImage.ball_pool` after `pca` or `normals` (whose ranges it reads): the same points in each pool,
+        listed in the box's order where the ball holds no more than `size` (the order a pool's PCA ignores)."""
+        index = np.ascontiguousarray(rows.numpy(), dtype=np.int64)
+        pool = np.full((len(index), size), -1, dtype=np.int64)
+        bands(
+            _ball_pools, len(index), self.points.numpy(), self.fit["ranges"], *self._pitch(), index, float(radius), pool
+        )
+        return torch.from_numpy(pool)
+
+    def pool_normals(
+        self, rows: np.ndarray, radius: float, size: int, gap: float, width: int = 0
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`pools.pool_normals` of `ball_pool`'s pools around the pixels `rows`, built and summed in one compiled
+        loop per pixel (as `NeighbourIndex.pool_normals` does the KD-tree's): unit normals, ascending eigenvalues and
+        validity; with an image `width`, not valid where a pool lies on one scan line."""
+        index = np.ascontiguousarray(rows, dtype=np.int64)
+        m = len(index)
+        normal, eigvals, valid = np.full((m, 3), np.nan), np.full((m, 3), np.nan), np.zeros(m, dtype=np.bool_)
+        bands(
+            _ball_pca, m, self.points.numpy(), self.fit["ranges"], *self._pitch(), index, float(radius), int(size),
+            float(gap), int(width), normal, eigvals, valid,
+        )  # fmt: skip
+        return normal, eigvals, valid
+
+    def _pitch(self) -> tuple[np.ndarray, np.ndarray]:
+        """The row and column pitch as float64 arrays, as the torch code reads them."""
+        return tuple(np.ascontiguousarray(p.numpy(), dtype=np.float64) for p in (self.pitch_row, self.pitch_col))
+
     def pca_on_slope(self, normal: torch.Tensor) -> WindowPCA:
         """`MomentImage.pca_on_slope`, after `pca`."""
         out = window_pca_on_slope(
@@ -138,6 +168,8 @@ def warm() -> CompiledImage:
     pitch = [np.full(12, 0.1, dtype=np.float32), np.full(16, 0.1, dtype=np.float32)]  # the grid's rays, 0.1 rad apart
     image = CompiledImage(torch.from_numpy(grid.reshape(-1, 3)), grid.shape[:2], tuple(map(torch.from_numpy, pitch)))
     image.normals(0.3, 0.1)
+    image.ball_pool(torch.arange(2), 0.3, 8)
+    image.pool_normals(np.arange(2), 0.3, 8, 1e-3, 16)
     image.pca(0.3, 0.1)
     image.finish()
     window_pca_on_slope(grid, image.fit, pitch[0], pitch[1], 0.3, np.nan_to_num(image.fit["normal"]))
@@ -602,6 +634,86 @@ def _half_widths(ranges, reach, pitch_row, pitch_col, r, c, pixels):
         angle = cap if ratio * AREA_MATCH >= cap else min(math.asin(ratio) * AREA_MATCH, cap)
     else:
         angle = math.asin(ratio) * AREA_MATCH
+    half_row = min(max(_round_or_zero(angle / pitch_row[r]), 0.0), float(height))
+    half_col = min(max(_round_or_zero(angle / pitch_col[c]), 0.0), float(width))
+    return np.int64(half_row), np.int64(half_col)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _ball_pools(points, ranges, pitch_row, pitch_col, rows, radius, pool, lo, hi):
+    """`MomentImage.ball_pool` of the pixels rows[lo:hi] into pool[lo:hi] (pre-filled with -1)."""
+    for m in range(lo, hi):
+        _ball_one(points, ranges, pitch_row, pitch_col, rows[m], radius, pool[m])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _ball_pca(points, ranges, pitch_row, pitch_col, rows, radius, size, gap, width, normal, eigvals, valid, lo, hi):
+    """`pools_numba.tree_normals` over `MomentImage.ball_pool`'s pools, without storing them: each pool's moments
+    about its pixel's point, PCA (`moments_pca`) and, with a `width`, the scan-line test (`single`)."""
+    pool, places = np.empty(size, dtype=np.int64), np.arange(size)
+    cov, sums = np.empty((3, 3)), np.empty(10)
+    image_width = ranges.shape[1]
+    for m in range(lo, hi):
+        count = _ball_one(points, ranges, pitch_row, pitch_col, rows[m], radius, pool)
+        r, c = rows[m] // image_width, rows[m] % image_width
+        x, y, z = points[r, c, 0], points[r, c, 1], points[r, c, 2]
+        sums[:] = 0.0
+        for a in range(count):
+            rr, cc = pool[a] // image_width, pool[a] % image_width
+            add_moments(sums, points[rr, cc, 0] - x, points[rr, cc, 1] - y, points[rr, cc, 2] - z)
+        valid[m] = moments_pca(sums, gap, cov, eigvals[m], normal[m])
+        if width > 0 and valid[m]:
+            valid[m] = not single(pool, places, count, width)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _ball_one(points, ranges, pitch_row, pitch_col, row, radius, out):
+    """One pixel's `MomentImage.ball_pool` into `out` (its width the pool's size): the box's points strictly inside
+    the ball in the box's order, or where more than the pool's size are, the nearest (`_nearest`); returns how many."""
+    height, width = ranges.shape
+    size, bound = len(out), radius * radius
+    r, c = row // width, row % width
+    half_row, half_col = _ball_box(ranges, pitch_row, pitch_col, r, c, radius, size)
+    distance = np.empty((2 * half_row + 1) * (2 * half_col + 1))
+    ids = np.empty(len(distance), dtype=np.int64)
+    x, y, z, n = points[r, c, 0], points[r, c, 1], points[r, c, 2], 0
+    for rr in range(max(r - half_row, 0), min(r + half_row + 1, height)):
+        for cc in range(max(c - half_col, 0), min(c + half_col + 1, width)):
+            dx, dy, dz = points[rr, cc, 0] - x, points[rr, cc, 1] - y, points[rr, cc, 2] - z
+            d = dx * dx + dy * dy + dz * dz
+            if d < bound:
+                distance[n], ids[n], n = d, rr * width + cc, n + 1
+    if n <= size:
+        out[:n] = ids[:n]
+        return n
+    _nearest(distance, ids, n, out)
+    return size
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _nearest(distance, ids, n, out):
+    """The ids of the len(out) nearest of the n candidates (listed by ascending id) into `out`, those at the cut's
+    distance by id: the set a stable sort keeps. A partition finds the cut, a few times faster than the sort."""
+    size = len(out)
+    cut = np.partition(distance[:n], size - 1)[size - 1]
+    taken = 0
+    for a in range(n):
+        if distance[a] < cut:
+            out[taken] = ids[a]
+            taken += 1
+    for a in range(n):
+        if taken == size:
+            break
+        if distance[a] == cut:
+            out[taken] = ids[a]
+            taken += 1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _ball_box(ranges, pitch_row, pitch_col, r, c, radius, size):
+    """`MomentImage.ball_box` of pixel (r, c)."""
+    height, width = ranges.shape
+    angle = min(math.asin(min(radius / ranges[r, c], 1.0)), math.sqrt(size * pitch_row[r] * pitch_col[c]) / 2)
     half_row = min(max(_round_or_zero(angle / pitch_row[r]), 0.0), float(height))
     half_col = min(max(_round_or_zero(angle / pitch_col[c]), 0.0), float(width))
     return np.int64(half_row), np.int64(half_col)

@@ -30,6 +30,9 @@ class PoolSearch:
     finite: np.ndarray
     #: Whether a pool lists its points nearest first, so that its first columns are the pool of a smaller size.
     nearest_first = True
+    #: Whether `index.pool_normals(rows, radius, size, gap, width)` searches and sums `pca`'s pools in one compiled
+    #: loop, so that they are never stored (`paths.pools.tree_pca`).
+    sums_pca = False
 
     def pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
         raise NotImplementedError
@@ -56,6 +59,7 @@ class _TreeSearch(PoolSearch):
     """The nearest `size` points inside the ball, from the compiled KD-tree on the CPU (kdtree.py)."""
 
     name = "kdtree"
+    sums_pca = True
 
     def __init__(self, index: NeighbourIndex, device: torch.device) -> None:
         self.index, self.device, self.finite = index, device, index.finite
