@@ -4,12 +4,14 @@ ball growing with range, and the real Kinect and Ouster recordings."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from triplet_normal_ros.core import estimator as estimator_module
 from triplet_normal_ros.core.cloud import without_no_returns
 from triplet_normal_ros.core.config.conventions import (
     DEPTH_RADIUS,
@@ -309,7 +311,7 @@ def test_the_compiled_windows_of_k_pixels_are_the_torch_ones(name: str) -> None:
 @pytest.mark.parametrize("name", sorted(FRAMES))
 def test_the_compiled_ball_pools_are_the_torch_ones(name: str) -> None:
     """`pca`'s pools where walls cut a window below a plane (`MomentImage.ball_pool`): the same points in both, at
-    the default k and at a k small enough that most balls hold more (the nearest k, equal distances by id); and the
+    the default k and at a k small enough that some balls hold more (the nearest k, equal distances by id); and the
     compiled loop that sums them as it builds them (`CompiledImage.pool_normals`) answers as torch's pool PCA and
     scan-line test do over the torch pools."""
     points, shape, radius, scale, _ = FRAMES[name]
@@ -334,3 +336,38 @@ def test_the_compiled_ball_pools_are_the_torch_ones(name: str) -> None:
     assert ref_valid.any()
     assert np.abs((normal[valid] * ref_normal.numpy()[valid]).sum(axis=1)).min() > 1 - 1e-9
     np.testing.assert_allclose(eigvals[valid], ref_eigvals.numpy()[valid], rtol=1e-6, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", ["simulated depth", "simulated lidar", "kinect"])
+def test_window_pca_on_the_torch_engine_answers_as_the_compiled_one(name: str, monkeypatch) -> None:
+    """What a GPU runs for `pca` on a range image (the torch windows, and where walls cut a window below a plane the
+    ball's pools, `pca_kernel` and the scan-line test, one radius group at a time on LiDAR), run on a CPU: the same
+    answers as the compiled engine, on a query subset that holds every such pixel."""
+    points, shape, radius, scale, _ = FRAMES[name]
+    estimator = NormalEstimator("pca", radius=radius, range_scale=scale, device="cpu")
+    whole, _ = estimator.estimate(points, shape=shape)
+    finite = np.isfinite(points).all(axis=1)
+    cut = np.flatnonzero(finite & ~np.isfinite(_window_normals(points, shape, radius, scale)).all(axis=1))
+    query = np.union1d(cut, np.flatnonzero(finite)[::7])
+    compiled, compiled_curvature = estimator.estimate(points, query, shape=shape)
+    np.testing.assert_array_equal(compiled, whole[query])
+    plan_cloud = estimator_module.plan_cloud
+
+    def on_torch(*args, **kwargs):
+        plan, pitch = plan_cloud(*args, **kwargs)
+        return replace(plan, engine="torch"), pitch
+
+    monkeypatch.setattr(estimator_module, "plan_cloud", on_torch)
+    reference, reference_curvature = estimator.estimate(points, query, shape=shape)
+    assert estimator.last_run.plan.engine == "torch" and estimator.last_run.search == "window"
+    answered = np.isfinite(reference).all(axis=1)
+    np.testing.assert_array_equal(np.isfinite(compiled).all(axis=1), answered)
+    assert answered[np.searchsorted(query, cut)].any()  # some cut windows took the ball on both engines
+    assert np.abs((compiled[answered] * reference[answered]).sum(axis=1)).min() > 1 - 1e-5
+    np.testing.assert_allclose(compiled_curvature[answered], reference_curvature[answered], rtol=1e-4, atol=1e-6)
+
+
+def _window_normals(points: np.ndarray, shape, radius: float, scale: float) -> np.ndarray:
+    """The compiled windows' own normals at `pca`'s k, NaN where walls cut a window below a plane."""
+    cloud = torch.from_numpy(points)
+    return CompiledImage(cloud, shape, range_pitch(cloud, shape)).normals(radius, scale, PCA_DEFAULT_K)[0]

@@ -33,8 +33,9 @@ class Plan:
     - `survey`: how every point gets its first answer: 'window' (integral images of an organized range image, O(1)
       per pixel), 'pool' (PCA of each point's pool) or 'none' (learned: the network everywhere, weighed against the
       ball's plane).
-    - `search`: the pool search for the points that need pools: 'kdtree', 'grid', 'voxel', or 'none' (window pca
-      needs no pool).
+    - `search`: the pool search for the points that need pools: 'kdtree', 'grid', 'voxel', or 'none' (window pca:
+      its few pixels whose window walls cut below a plane take pools from the image itself,
+      `paths.range_image.ball_where_cut`).
     - `checkpoint`: the network's checkpoint (a shipped name or a path), '' for pca.
     - `engine`: which twin runs each step that has two: 'compiled' (the `*_numba` modules, on a CPU) or 'torch' (on a
       GPU). The paths read it once per call (`paths.call.Call.compiled`); only the windows name it in `steps`.

@@ -80,9 +80,9 @@ def ball_where_cut(
     curvature: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """`pca`'s answers where walls cut a window below a plane (too few points, one image row or column, or a line):
-    PCA of the ball's points among the pixels of a box no wall cuts (`MomentImage.ball_pool`), as the pool path takes
-    it, with its scan-line and plane tests, so that such a point gets the answer `pca` gives it without an image,
-    and NaN only where the ball holds no plane either. A thin post or a stair nose seen edge-on, whose window the
+    PCA of the ball's points among the pixels around it (`MomentImage.ball_pool`), as the pool path takes it, with
+    its scan-line and plane tests, so that such a point gets about the answer `pca` gives it without an image, and
+    NaN only where the ball holds no plane either. A thin post or a stair nose seen edge-on, whose window the
     depth jumps on both sides cut to a sliver, still lies within the ball of its neighbours (docs/HISTORY.md,
     "Window `pca` where walls cut the window")."""
     todo = np.flatnonzero(finite & np.isnan(normals[:, 0]))

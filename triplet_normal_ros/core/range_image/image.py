@@ -167,12 +167,14 @@ class MomentImage:
 
     def ball_pool(self, rows: torch.Tensor, radius: float, size: int) -> torch.Tensor:
         """(M, size) int64, -1 padded: the points strictly inside the ball of `radius` around each of the flat pixels
-        `rows`, among the pixels of a box that no wall cuts, the nearest `size` of them (equal distances by id).
+        `rows`, among the pixels of a box around it, the nearest `size` of them (equal distances by id). The box
+        ignores the walls: the ball's own distance test drops the far side of a depth jump.
 
-        The pool of `pca`'s pixels whose window walls cut below a plane (`paths.range_image.window_pca`). The box's
-        half-widths are the ball's angular radius over each axis' pitch (`ball_box`), so the ball within it is what
-        the pool path would search, and it spans about `size` pixels at most: a KD-tree built for a few hundred
-        pixels a frame would cost more than the windows."""
+        The pool of `pca`'s pixels whose window walls cut below a plane (`paths.range_image.ball_where_cut`). The
+        box's half-widths are the ball's angular radius over each axis' pitch (`ball_box`), so it holds the ball the
+        pool path would search, and it spans about `size` pixels at most (then a square of about `size` pixels
+        rather than the nearest `size` of the ball): a KD-tree built for a few hundred pixels a frame would cost
+        more than the windows."""
         height, width = self.height, self.width
         half_row, half_col = self.ball_box(rows, radius, size)
         if len(rows) == 0:
@@ -209,7 +211,7 @@ class MomentImage:
 def window_angle_cap(pixels: float, pitch_row: torch.Tensor, pitch_col: torch.Tensor) -> torch.Tensor:
     """The angular radius whose window holds `pixels` pixels: a window of half-widths a / pitch_row and a / pitch_col
     spans about (2a / pitch_row) (2a / pitch_col) pixels, so a = sqrt(pixels · pitch_row · pitch_col) / 2, in the
-    order the compiled twin (`image_numba._half_widths`) computes it, so both round to the same half-widths."""
+    order the compiled twin (`image_numba.window_angle_cap`) computes it, so both round to the same half-widths."""
     return torch.sqrt(pixels * pitch_row * pitch_col) / 2
 
 

@@ -624,11 +624,11 @@ def _pixels(
 @njit(cache=True, nogil=True, error_model="numpy")
 def _half_widths(ranges, reach, pitch_row, pitch_col, r, c, pixels):
     """The window's half-widths in pixels per axis from the ball's angular radius, with `pixels` > 0 capped so that
-    the window holds about that many (`MomentImage._half_widths`; the cap is `image.window_angle_cap`'s)."""
+    the window holds about that many (`MomentImage._half_widths`; the cap is `window_angle_cap`'s)."""
     height, width = ranges.shape
     ratio = min(reach[r, c] / ranges[r, c], 1.0)
     if pixels > 0:
-        cap = math.sqrt(pixels * pitch_row[r] * pitch_col[c]) / 2
+        cap = window_angle_cap(pixels, pitch_row[r], pitch_col[c])
         # asin(x) >= x, so where x · AREA_MATCH already reaches the cap, the cap is the angle (a quarter to most
         # pixels of a depth frame at k = 500, the near ones): the same value without the arcsine
         angle = cap if ratio * AREA_MATCH >= cap else min(math.asin(ratio) * AREA_MATCH, cap)
@@ -672,6 +672,8 @@ def _ball_one(points, ranges, pitch_row, pitch_col, row, radius, out):
     the ball in the box's order, or where more than the pool's size are, the nearest (`_nearest`); returns how many."""
     height, width = ranges.shape
     size, bound = len(out), radius * radius
+    if size == 0:
+        return 0
     r, c = row // width, row % width
     half_row, half_col = _ball_box(ranges, pitch_row, pitch_col, r, c, radius, size)
     distance = np.empty((2 * half_row + 1) * (2 * half_col + 1))
@@ -713,10 +715,16 @@ def _nearest(distance, ids, n, out):
 def _ball_box(ranges, pitch_row, pitch_col, r, c, radius, size):
     """`MomentImage.ball_box` of pixel (r, c)."""
     height, width = ranges.shape
-    angle = min(math.asin(min(radius / ranges[r, c], 1.0)), math.sqrt(size * pitch_row[r] * pitch_col[c]) / 2)
+    angle = min(math.asin(min(radius / ranges[r, c], 1.0)), window_angle_cap(size, pitch_row[r], pitch_col[c]))
     half_row = min(max(_round_or_zero(angle / pitch_row[r]), 0.0), float(height))
     half_col = min(max(_round_or_zero(angle / pitch_col[c]), 0.0), float(width))
     return np.int64(half_row), np.int64(half_col)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def window_angle_cap(pixels, pitch_row, pitch_col):
+    """`image.window_angle_cap` of one pixel's row and column pitch, in its order of operations."""
+    return math.sqrt(pixels * pitch_row * pitch_col) / 2
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

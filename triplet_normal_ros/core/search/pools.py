@@ -2,7 +2,9 @@
 
 Three indexes answer `pool(rows, radius, size)`: a KD-tree on the CPU (`neighbours.NeighbourIndex`), the pixel grid
 of an organized range image (`grid.GridIndex`) and sorted cell lists (`voxels.VoxelIndex`), both on the device.
-Which one a cloud gets is the plan's decision (`config/plan.py`); this module only opens it. With a range_scale each
+Which one a cloud gets is the plan's decision (`config/plan.py`); this module only opens it. (Window `pca`'s pools
+where walls cut a window come from the range image's own pixels, `paths.range_image`, which this layer does not
+import.) With a range_scale each
 point's ball grows with its range, and pools are searched one radius per group of points (`radius_groups`).
 """
 
