@@ -9,8 +9,9 @@ the ball.
 
 Rows: the window's smallest axis, the window's ray-noise plane, the ray-noise plane of windows of at most about
 256, 500 and 1000 pixels (`MomentImage.pca`'s `pixels`: the window's angular radius capped where the ball would hold
-more), `pca` on the organized cloud (those windows of about 500 pixels, and where walls cut a window below a plane,
-PCA of the ball's points among the pixels around it: `MomentImage.ball_pool`), and PCA over the ball (the
+more), those windows fitted to the slope of the plane at their block's centre (`MomentImage.fitted_planes`), `pca`
+on the organized cloud (the fitted windows, and where walls cut a window below a plane, PCA of the ball's points among
+the pixels around it: `MomentImage.ball_pool`), and PCA over the ball (the
 unorganized `pca`, the nearest 500 points in the ball), on simulated depth, fold and
 LiDAR frames of seeds 100 and up, at eval's radii. MSAE (rad², sign-invariant, a missing normal scored as 90°) at 8000
 valid pixels per frame, overall and near edges.
@@ -79,8 +80,12 @@ def _score(kind: str, frame) -> dict[str, tuple[float, float]]:
         capped = image.pca(spec.radius, spec.range_scale, pixels)
         normal = np.where(capped.valid.numpy()[:, None], ray_noise_normal(capped).numpy(), np.nan)
         planes[f"window of at most about {pixels} pixels, ray-noise plane"] = normal[query]
+    normal, _, valid = image.fitted_planes(spec.radius, spec.range_scale, CAPS[1])
+    planes[f"window of at most about {CAPS[1]} pixels fitted to the slope"] = np.where(
+        valid.numpy()[:, None], normal.numpy(), np.nan
+    )[query]
     estimator = NormalEstimator("pca", radius=spec.radius, range_scale=spec.range_scale, device="cpu")
-    planes["`pca` on the image: windows of about 500, the ball where walls cut one"] = estimator.estimate(
+    planes["`pca` on the image: those fitted windows, the ball where walls cut one"] = estimator.estimate(
         points, query, shape=shape
     )[0]
     planes["ball PCA (unorganized)"] = estimator.estimate(points, query)[0]

@@ -23,9 +23,10 @@ from triplet_normal_ros.core.config.conventions import (
 )
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.pca.eigen import EIGEN_GAP
+from triplet_normal_ros.core.pca.frames import surface_variation
 from triplet_normal_ros.core.pca.pools import pool_normals
 from triplet_normal_ros.core.range_image.check import range_pitch
-from triplet_normal_ros.core.range_image.image import MomentImage, ray_noise_normal
+from triplet_normal_ros.core.range_image.image import MomentImage
 from triplet_normal_ros.core.range_image.image_numba import CompiledImage
 from triplet_normal_ros.core.range_image.sides import snap_to_sides
 from triplet_normal_ros.core.range_image.survey import survey_and_cue, survey_on_slope, window_z
@@ -198,7 +199,6 @@ def test_the_compiled_finish_is_the_torch_finish(name: str) -> None:
     no plane, as `kernels.finish` of `image.ray_noise_normal` and `frames.surface_variation` gives them for the same
     windows."""
     from triplet_normal_ros.core.paths.call import finish
-    from triplet_normal_ros.core.pca.frames import surface_variation
     from triplet_normal_ros.core.range_image.image import ray_noise_normal
 
     (_, image), (_, fit) = _fits(name)
@@ -277,35 +277,26 @@ def test_the_compiled_snap_to_sides_is_the_torch_snap(name: str) -> None:
     assert (~agree).sum() <= MAY_DIFFER * len(pixels) + 1, (~agree).sum()
 
 
+@pytest.mark.parametrize("pixels", [0, PCA_DEFAULT_K])
 @pytest.mark.parametrize("name", sorted(FRAMES))
-def test_the_one_pass_normals_are_the_window_fit_finished(name: str) -> None:
-    """`pca`'s one pass per pixel (`CompiledImage.normals`) answers what the window fit and its finish answer, bit
-    for bit: the same windows, moments and eigen-decomposition; and the holes it skips are NaN, as the finish makes
-    them. (The windows against torch's, whose searches bisect without a guess: the tests above.)"""
+def test_the_one_pass_normals_are_the_torch_fitted_planes(name: str, pixels: int) -> None:
+    """`pca`'s one pass per pixel (`CompiledImage.normals`: the block centres' slopes, then each pixel's window fitted
+    to its block's slope, its first window where that one is not valid) answers what torch's
+    `MomentImage.fitted_planes` and the finish answer, for the whole ball's windows and for windows of about k pixels
+    (`image.window_angle_cap`): the same pixels answered, the same planes and curvature, and NaN at holes. A window
+    one pixel wider or narrower on a noisy frame turns its plane by far more than the tolerance."""
     points, shape, radius, scale, _ = FRAMES[name]
     cloud = torch.from_numpy(points)
     pitch = range_pitch(cloud, shape)
-    fitted = CompiledImage(cloud, shape, pitch)
-    fitted.pca(radius, scale)
-    normals, curvature = CompiledImage(cloud, shape, pitch).normals(radius, scale)
-    ref_normals, ref_curvature = fitted.finish()
-    assert np.isfinite(normals).all(axis=1).sum() > 1000
-    np.testing.assert_array_equal(normals, ref_normals)
-    np.testing.assert_array_equal(curvature, ref_curvature)
-
-
-@pytest.mark.parametrize("name", sorted(FRAMES))
-def test_the_compiled_windows_of_k_pixels_are_the_torch_ones(name: str) -> None:
-    """`pca`'s windows capped at about k pixels (`image.window_angle_cap`): the same windows and planes in both."""
-    points, shape, radius, scale, _ = FRAMES[name]
-    cloud = torch.from_numpy(points)
-    pitch = range_pitch(cloud, shape)
-    fit = MomentImage(cloud, shape, pitch).pca(radius, scale, PCA_DEFAULT_K)
-    answered = (fit.valid & torch.isfinite(cloud).all(dim=1)).numpy()
-    normals, _ = CompiledImage(cloud, shape, pitch).normals(radius, scale, PCA_DEFAULT_K)
+    normals, curvature = CompiledImage(cloud, shape, pitch).normals(radius, scale, pixels)
+    normal, eigvals, valid = MomentImage(cloud, shape, pitch).fitted_planes(radius, scale, pixels)
+    answered = (valid & torch.isfinite(cloud).all(dim=1)).numpy()
+    assert answered.sum() > 1000
     np.testing.assert_array_equal(np.isfinite(normals).all(axis=1), answered)
-    reference = ray_noise_normal(fit).numpy()[answered]
-    assert np.abs((reference * normals[answered]).sum(axis=1)).min() > 1 - 1e-6
+    np.testing.assert_array_equal(np.isfinite(curvature), answered)
+    assert np.abs((normal.numpy()[answered] * normals[answered]).sum(axis=1)).min() > 1 - 1e-6
+    reference = surface_variation(eigvals).numpy()[answered]
+    np.testing.assert_allclose(curvature[answered], reference, rtol=1e-4, atol=1e-6)
 
 
 @pytest.mark.parametrize("name", sorted(FRAMES))

@@ -49,10 +49,11 @@ CLEAN_SMOOTH_RMSE_BOUND_DEG = 0.61  # near the measured 0.554°, so a regression
 LIGHT_SMOOTH_BOUND = 1.01  # measured 0.999x
 DEPTH_BOUNDS = (0.83, 0.61)  # learned / PCA over the pool: overall, near edges (measured 0.790, 0.573)
 HYBRID_DEPTH_BOUNDS = (0.39, 0.67)  # hybrid (window survey) / PCA over the pool: overall, near edges (0.340, 0.582)
-#: LiDAR, with the preset's ball growing with range: hybrid / window PCA overall and near edges (measured 0.945 and
-#: 0.677), learned / PCA over its pool where both answer (measured 0.975), and the share of returns the windows answer
-#: (measured 0.943; the nearest-512 pool answers 0.461: one ring, a line, beyond a few metres).
-HYBRID_LIDAR_BOUNDS = (0.97, 0.75)
+#: LiDAR, with the preset's ball growing with range: hybrid / window PCA overall and near edges (measured 0.972 and
+#: 0.739 since window PCA fits its windows to the slope; 0.945 and 0.677 before), learned / PCA over its pool where
+#: both answer (measured 0.975), and the share of returns the windows answer (measured 0.943; the nearest-512 pool
+#: answers 0.461: one ring, a line, beyond a few metres).
+HYBRID_LIDAR_BOUNDS = (0.99, 0.8)
 LIDAR_COMMON_BOUND = 0.985
 LIDAR_WINDOW_COVERAGE = 0.92
 PCPNET_CUBE_BOUNDS = {0.0: 5.5, 0.006: 13.3}  # noise -> RMSE° bound
@@ -307,16 +308,18 @@ def test_hybrid_on_depth_frames_beats_pca_everywhere_and_learned_overall():
 
 def test_on_lidar_scans_the_preset_windows_answer_where_the_nearest_pool_holds_one_ring():
     """RESULTS ("LiDAR neighbourhoods"): with the preset's ball growing with range, the windows span three beams and
-    answer 94 % of the returns; the nearest 512 points of a ball lie on one ring (a line: no normal) for half."""
+    answer 94 % of the returns, and hybrid as many to a tenth of a percent (its survey's windows are not `pca`'s:
+    they cover the whole ball and fit the slope pixel by pixel); the nearest 512 points of a ball lie on one ring (a
+    line: no normal) for half."""
     s = _range("lidar")
     assert s.answered("window").mean() > LIDAR_WINDOW_COVERAGE
-    assert s.answered("hybrid").mean() >= s.answered("window").mean()
+    assert s.answered("hybrid").mean() >= s.answered("window").mean() - 1e-3
     assert s.answered("pca").mean() < 0.75 * s.answered("window").mean()
 
 
 def test_on_lidar_scans_hybrid_beats_window_pca_overall_and_most_near_edges():
     """RESULTS: hybrid beats the preset's window PCA overall (both miss the same 6 %, at 90°) and most near edges
-    (measured 0.945x and 0.677x), both beyond sampling error."""
+    (measured 0.972x and 0.739x), both beyond sampling error."""
     s = _range("lidar")
     overall, overall_interval = s.versus("hybrid", "window")
     edges, edge_interval = s.versus("hybrid", "window", s.edge)

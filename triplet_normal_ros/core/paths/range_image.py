@@ -14,7 +14,7 @@ import torch
 from ..config.plan import Plan
 from ..pca.frames import surface_variation
 from ..range_image import lattice
-from ..range_image.image import MomentImage, ray_noise_normal
+from ..range_image.image import MomentImage
 from ..range_image.image_numba import CompiledImage
 from ..range_image.lattice import agreed, plan_lattice
 from ..range_image.sides import snap_to_sides
@@ -53,15 +53,16 @@ def window_pca(
     (`image.ray_noise_normal`): PCA's normal on a noise-free window, and on a noisy one the normal PCA tips toward the
     ray (docs/HISTORY.md, "Window `pca` with the ray-noise plane"). The curvature is PCA's surface variation of the
     window. A window holds about k pixels at most, the nearest k points as the pool path takes them (docs/HISTORY.md,
-    "Window `pca` at k pixels")."""
+    "Window `pca` at k pixels"), and is fitted to the slope of the surface, so that it covers the ball on the
+    surface rather than in the image (`MomentImage.fitted_planes`)."""
     s = call.settings
     if image.compiled:
         normals, curvature = image.normals(s.radius, s.range_scale, call.pool_size())
         finite = image.finite.reshape(-1)
     else:
-        fit = image.pca(s.radius, s.range_scale, call.pool_size())
+        normal, eigvals, valid = image.fitted_planes(s.radius, s.range_scale, call.pool_size())
         finite = image.finite.reshape(-1)
-        normals, curvature = finish(ray_noise_normal(fit), surface_variation(fit.eigvals), fit.valid & finite)
+        normals, curvature = finish(normal, surface_variation(eigvals), valid & finite)
     whole = len(query) == len(finite) and bool(query[0] == 0) and bool((np.diff(query) == 1).all())
     finite = finite.cpu().numpy() if whole else finite.cpu().numpy()[query]
     call.run.estimated = int(np.count_nonzero(finite))

@@ -45,6 +45,12 @@ JUMP_RANGE_FRACTION = 0.04
 #: of it from one beam to the next and is still one surface. A depth camera's rays lie 1.6 mrad apart: 0.018 of the
 #: range, under JUMP_RANGE_FRACTION, so its walls stand where they did.
 GRAZING_TAN = math.tan(math.radians(85.0))
+#: `pca` fits each pixel's window to the slope of the plane at the centre of its block of SLOPE_STRIDE × SLOPE_STRIDE
+#: pixels (`MomentImage.fitted_planes`): one pixel from any of its pixels, so the slope is its own surface's but for
+#: a step at a fold, and a ninth of the first windows are fitted. On frames of seeds eval does not score, a slope from
+#: every pixel's own first window and one from a block centre 2 or 3 pixels away gave the same error to 1-3 %
+#: (docs/HISTORY.md, "Window `pca` fitted to the slope").
+SLOPE_STRIDE = 5
 #: How many steps a window shrinks in while a wall crosses it (a binary search over these levels).
 SHRINK_LEVELS = 16
 #: The one-sided windows a pixel beside a wall also tries, as (up, down, left, right) reach: four half windows, then
@@ -124,6 +130,38 @@ class MomentImage:
         half_row, half_col, walls, flat = self._sizing
         rows, cols = on_slope(half_row, half_col, normal.view(self.height, self.width, 3), self.rays)
         return self._fit(rows, cols, walls, flat)
+
+    def fitted_planes(
+        self, radius: float, range_scale: float = 0.0, pixels: float = 0.0
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """`pca`'s answer on a range image: each pixel's window (`pca` with these arguments) fitted to the slope of
+        the first windows' ray-noise plane at the centre of its SLOPE_STRIDE block (`block_stretch`); per pixel the
+        fitted window's ray-noise normal (N, 3), ascending eigenvalues (N, 3) and validity (N,), the first window's
+        where the fitted one is not valid. The first window covers the ball's angular radius, so on a surface seen
+        obliquely it reaches past the ball and across a fold; the fitted one covers the ball on the surface
+        (`on_slope`), as the pool path's ball does (docs/HISTORY.md, "Window `pca` fitted to the slope")."""
+        first = self.pca(radius, range_scale, pixels)
+        half_row, half_col, walls, flat = self._sizing
+        stretch_row, stretch_col = self.block_stretch(first)
+        fitted = self._fit(shrink(half_row, stretch_row), shrink(half_col, stretch_col), walls, flat)
+        keep = fitted.valid.unsqueeze(-1)
+        normal = torch.where(keep, ray_noise_normal(fitted), ray_noise_normal(first))
+        return normal, torch.where(keep, fitted.eigvals, first.eigvals), fitted.valid | first.valid
+
+    def block_stretch(self, fit: WindowPCA) -> tuple[torch.Tensor, torch.Tensor]:
+        """(H, W) per image axis (rows, columns): the stretch (`_stretch`) of `fit`'s ray-noise plane at the centre of
+        each pixel's SLOPE_STRIDE block, 1 where that centre is a hole or its window not valid."""
+        rows, cols = block_centres(self.height, self.device), block_centres(self.width, self.device)
+        usable = (fit.valid & self.finite.reshape(-1)).unsqueeze(-1)
+        plane = torch.where(usable, ray_noise_normal(fit), 0.0).view(self.height, self.width, 3)[rows][:, cols]
+        rays = self.rays[rows][:, cols]
+        block_row = torch.arange(self.height, device=self.device) // SLOPE_STRIDE
+        block_col = torch.arange(self.width, device=self.device) // SLOPE_STRIDE
+        stretches = []
+        for dim in (0, 1):
+            stretch = _stretch(plane, rays, _ray_turn(self.rays, dim)[rows][:, cols])
+            stretches.append(stretch[block_row][:, block_col])
+        return stretches[0], stretches[1]
 
     def _fit(self, half_row: torch.Tensor, half_col: torch.Tensor, walls: _WallTable, reach) -> WindowPCA:
         """Window PCA at these half-widths: the largest clear boxes, one-sided where a wall cut them."""
@@ -224,12 +262,23 @@ def on_slope(half_row: torch.Tensor, half_col: torch.Tensor, normal: torch.Tenso
     meeting a box. Each axis' half-width is divided by that stretch (`_stretch`), rounded half to even, but never
     below one pixel (a window must span two scan lines); a zero normal keeps the half-width.
     """
-    halves = []
-    for half, dim in ((half_row, 0), (half_col, 1)):
-        stretch = _stretch(normal, rays, _ray_turn(rays, dim))
-        shrunk = torch.round(half.to(torch.float64) / stretch).to(torch.int64)
-        halves.append(torch.maximum(shrunk, half.clamp_max(1)))
-    return halves[0], halves[1]
+    return shrink(half_row, _stretch(normal, rays, _ray_turn(rays, 0))), shrink(
+        half_col, _stretch(normal, rays, _ray_turn(rays, 1))
+    )
+
+
+def shrink(half: torch.Tensor, stretch: torch.Tensor) -> torch.Tensor:
+    """The (H, W) half-widths divided by the `stretch` (>= 1) of the surface along their axis, rounded half to even,
+    never below one pixel where they had one (a window must span two scan lines)."""
+    shrunk = torch.round(half.to(torch.float64) / stretch).to(torch.int64)
+    return torch.maximum(shrunk, half.clamp_max(1))
+
+
+def block_centres(size: int, device: torch.device) -> torch.Tensor:
+    """The index of the centre pixel of each SLOPE_STRIDE block along an axis of `size` pixels; the last, partial
+    block's is its last pixel where the centre would fall beyond it."""
+    centres = torch.arange(0, size, SLOPE_STRIDE, device=device) + SLOPE_STRIDE // 2
+    return centres.clamp_max(size - 1)
 
 
 def _ray_turn(rays: torch.Tensor, dim: int) -> torch.Tensor:

@@ -35,6 +35,7 @@ from .image import (
     JUMP_RANGE_FRACTION,
     ONE_SIDED,
     SHRINK_LEVELS,
+    SLOPE_STRIDE,
     WindowPCA,
 )
 
@@ -109,8 +110,8 @@ class CompiledImage:
         return normals, curvature
 
     def normals(self, radius: float, range_scale: float = 0.0, pixels: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """`pca` (with its `pixels`) then `finish` in one pass (`window_normals`), when nothing else reads the windows;
-        `finite` then reads the ranges it computed."""
+        """`MomentImage.fitted_planes` then `finish` in one pass per pixel (`window_normals`), for `pca`, which reads
+        nothing else of the windows; `finite` then reads the ranges it computed."""
         normals, curvature, ranges = window_normals(
             self.points.numpy(), self.pitch_row.numpy(), self.pitch_col.numpy(), float(radius), float(range_scale),
             float(pixels),
@@ -199,21 +200,25 @@ def window_normals(
     points: np.ndarray, pitch_row: np.ndarray, pitch_col: np.ndarray, radius: float, range_scale: float,
     pixels: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """`window_pca` (windows of about `pixels` pixels at most, where that is not 0: `MomentImage.pca`) and
-    `CompiledImage.finish` in one pass per pixel, for `pca`, which reads nothing else: unit
-    float32 normals (H·W, 3) and curvature (H·W), NaN where there is no valid window or no point, and the (H, W)
-    ranges. The same windows and arithmetic, so the same answers, without the eight per-pixel arrays of the fit that
-    hybrid's survey reads (about 50 MB on a 640x480 frame)."""
-    tables = _tables(points, pitch_row, pitch_col, radius, range_scale)
-    height, width = tables["ranges"].shape
+    """`MomentImage.fitted_planes` (windows of about `pixels` pixels at most, where that is not 0, fitted to the slope
+    at their block's centre) and `CompiledImage.finish` in two passes, for `pca`, which reads nothing else: the
+    block centres' stretches, then per pixel its window, PCA and finished answer. Unit float32 normals (H·W, 3) and
+    curvature (H·W), NaN where there is no valid window or no point, and the (H, W) ranges. The same windows and
+    arithmetic, so the same answers, without the eight per-pixel arrays of the fit that hybrid's survey reads (about
+    50 MB on a 640x480 frame); of the first windows, only the block centres' are fitted."""
+    t = _tables(points, pitch_row, pitch_col, radius, range_scale)
+    height, width = t["ranges"].shape
+    blocks = (-(-height // SLOPE_STRIDE), -(-width // SLOPE_STRIDE))
+    stretch = np.empty((*blocks, 2))
+    sizing = (t["ranges"], t["reach_grid"], t["pitch_row"], t["pitch_col"], t["col_walls"], t["row_walls"])
+    bands(_block_stretch, blocks[0], t["points"], t["table"], t["counts"], t["offset"], *sizing, float(pixels), stretch)
     normals = np.empty((height * width, 3), dtype=np.float32)
     curvature = np.empty(height * width, dtype=np.float32)
     bands(
-        _normals, height, tables["table"], tables["counts"], tables["offset"], tables["ranges"], tables["reach_grid"],
-        tables["pitch_row"], tables["pitch_col"], tables["col_walls"], tables["row_walls"], float(pixels), normals,
-        curvature, pieces=4,
+        _normals, height, t["table"], t["counts"], t["offset"], *sizing, float(pixels), stretch, normals, curvature,
+        pieces=4,
     )  # fmt: skip
-    return normals, curvature, tables["ranges"]
+    return normals, curvature, t["ranges"]
 
 
 def _tables(
@@ -340,12 +345,38 @@ def _finish_one(x, y, z, eigvals, answered, normals, curvature, i):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _block_stretch(
+    points, table, counts, offset, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, pixels, stretch, lo, hi
+):  # fmt: skip
+    """Block rows lo..hi of `MomentImage.block_stretch`: at each block's centre pixel, the stretch along the image's
+    rows and columns (`_stretch`) of its first window's ray-noise plane; 1 at a hole or where that window is not
+    valid."""
+    height, width = ranges.shape
+    eigvals, normal = np.empty(3), np.empty(3)
+    for block_row in range(lo, hi):
+        r = min(block_row * SLOPE_STRIDE + SLOPE_STRIDE // 2, height - 1)
+        for block_col in range(stretch.shape[1]):
+            c = min(block_col * SLOPE_STRIDE + SLOPE_STRIDE // 2, width - 1)
+            stretch[block_row, block_col, 0] = stretch[block_row, block_col, 1] = 1.0
+            if np.isnan(ranges[r, c]):
+                continue
+            half_row, half_col = _half_widths(ranges, reach, pitch_row, pitch_col, r, c, pixels)
+            top, bottom, left, right = _window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width)
+            valid, nx, ny, nz = _window_fit(table, counts, offset, r, c, top, bottom, left, right, eigvals, normal)
+            if valid:
+                stretch[block_row, block_col, 0] = _stretch(points, ranges, r, c, 1, 0, nx, ny, nz)
+                stretch[block_row, block_col, 1] = _stretch(points, ranges, r, c, 0, 1, nx, ny, nz)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _normals(
-    table, counts, offset, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, pixels, normals, curvature, lo, hi
-):
-    """Rows lo..hi of `window_normals`: each pixel's window (of about `pixels` pixels at most, where that is not 0),
-    its PCA and validity, and the finished answer, the window's ray-noise plane. A hole answers NaN without a window,
-    since `_finish` discards its fit."""
+    table, counts, offset, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, pixels, stretch, normals,
+    curvature, lo, hi,
+):  # fmt: skip
+    """Rows lo..hi of `window_normals`: each pixel's window (of about `pixels` pixels at most, where that is not 0)
+    with its half-widths shrunk by its block's `stretch`, its PCA and validity, the first window's where that is not
+    valid, and the finished answer, the window's ray-noise plane. A hole answers NaN without a window, since
+    `_finish` discards its fit."""
     height, width = ranges.shape
     eigvals, normal = np.empty(3), np.empty(3)
     for r in range(lo, hi):
@@ -355,7 +386,11 @@ def _normals(
                 _finish_one(0.0, 0.0, 0.0, eigvals, False, normals, curvature, i)
                 continue
             half_row, half_col = _half_widths(ranges, reach, pitch_row, pitch_col, r, c, pixels)
-            top, bottom, left, right = _window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width)
+            block_row, block_col = r // SLOPE_STRIDE, c // SLOPE_STRIDE
+            rows = _on_slope(half_row, stretch[block_row, block_col, 0])
+            cols = _on_slope(half_col, stretch[block_row, block_col, 1])
+            top, bottom, left, right = _window(r, c, rows, cols, counts, col_walls, row_walls, height, width)
+            # `_window_fit`, written out: as an inlined call it costs this loop about a tenth of its time
             k, mx, my, mz, c0, c1, c2, c3, c4, c5 = _box_moments(table, top, bottom, left, right)
             smallest_eigenvector(c0, c1, c2, c3, c4, c5, eigvals, normal)
             valid = _valid_fit(counts, r, c, top, bottom, left, right, k, eigvals, normal)
@@ -363,7 +398,33 @@ def _normals(
             nx, ny, nz = _ray_noise(
                 c0, c1, c2, c3, c4, c5, ray_x, ray_y, ray_z, eigvals[2], normal[0], normal[1], normal[2]
             )
+            if not valid and (rows != half_row or cols != half_col):
+                valid, nx, ny, nz = _unfitted(
+                    table, counts, offset, col_walls, row_walls, r, c, half_row, half_col, eigvals, normal
+                )
             _finish_one(nx, ny, nz, eigvals, valid, normals, curvature, i)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _unfitted(table, counts, offset, col_walls, row_walls, r, c, half_row, half_col, eigvals, normal):
+    """`_window_fit` of the pixel's first window, where the one fitted to the slope is not valid: a rare path, kept
+    out of `_normals`' loop."""
+    height, width = counts.shape[0] - 1, counts.shape[1] - 1
+    top, bottom, left, right = _window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width)
+    return _window_fit(table, counts, offset, r, c, top, bottom, left, right, eigvals, normal)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _window_fit(table, counts, offset, r, c, top, bottom, left, right, eigvals, normal):
+    """The window's PCA into `eigvals` and `normal`, whether it is valid, and its ray-noise plane."""
+    k, mx, my, mz, c0, c1, c2, c3, c4, c5 = _box_moments(table, top, bottom, left, right)
+    smallest_eigenvector(c0, c1, c2, c3, c4, c5, eigvals, normal)
+    valid = _valid_fit(counts, r, c, top, bottom, left, right, k, eigvals, normal)
+    nx, ny, nz = _ray_noise(
+        c0, c1, c2, c3, c4, c5, mx + offset[0], my + offset[1], mz + offset[2], eigvals[2], normal[0], normal[1],
+        normal[2],
+    )  # fmt: skip
+    return valid, nx, ny, nz
 
 
 def _empty_fit(n: int) -> dict[str, np.ndarray]:
