@@ -3,7 +3,7 @@
 Two kinds of bound. *Regression bounds* sit just above the checkpoint's own measured figure, so that a regression which
 still meets the claims fails too (measured with the shipped `default`, 5000 query points: held-out CAD MSAE ratios to
 PCA 0.191x clean, 0.664x at 0.5 % noise, 0.984x at 1 %; smooth shape 1.000x at 1 %, 0.999x at 0.25 %, clean RMSE 0.554°
-against PCA's 0.892°; eval's depth frames 0.790x overall and 0.573x near edges, on LiDAR scans hybrid 0.945x and 0.677x
+against PCA's 0.892°; eval's depth frames 0.790x overall and 0.573x near edges, on LiDAR scans hybrid 0.972x and 0.739x
 the preset's window PCA; PCPNet cube 5.00° clean and 12.89° at 0.6 %). *Claim bounds* carry meaning of their own and are
 the facts docs/RESULTS.md states: the learned method (and hybrid, the node's default) beats PCA over the same ball
 beyond the sampling error of the query points wherever RESULTS says it helps (the upper end of a 95 % paired bootstrap
@@ -50,9 +50,8 @@ LIGHT_SMOOTH_BOUND = 1.01  # measured 0.999x
 DEPTH_BOUNDS = (0.83, 0.61)  # learned / PCA over the pool: overall, near edges (measured 0.790, 0.573)
 HYBRID_DEPTH_BOUNDS = (0.39, 0.67)  # hybrid (window survey) / PCA over the pool: overall, near edges (0.340, 0.582)
 #: LiDAR, with the preset's ball growing with range: hybrid / window PCA overall and near edges (measured 0.972 and
-#: 0.739 since window PCA fits its windows to the slope; 0.945 and 0.677 before), learned / PCA over its pool where
-#: both answer (measured 0.975), and the share of returns the windows answer (measured 0.943; the nearest-512 pool
-#: answers 0.461: one ring, a line, beyond a few metres).
+#: 0.739), learned / PCA over its pool where both answer (measured 0.975), and the share of returns the windows
+#: answer (measured 0.943; the nearest-512 pool answers 0.461: one ring, a line, beyond a few metres).
 HYBRID_LIDAR_BOUNDS = (0.99, 0.8)
 LIDAR_COMMON_BOUND = 0.985
 LIDAR_WINDOW_COVERAGE = 0.92
@@ -308,12 +307,12 @@ def test_hybrid_on_depth_frames_beats_pca_everywhere_and_learned_overall():
 
 def test_on_lidar_scans_the_preset_windows_answer_where_the_nearest_pool_holds_one_ring():
     """RESULTS ("LiDAR neighbourhoods"): with the preset's ball growing with range, the windows span three beams and
-    answer 94 % of the returns, and hybrid as many to a tenth of a percent (its survey's windows are not `pca`'s:
-    they cover the whole ball and fit the slope pixel by pixel); the nearest 512 points of a ball lie on one ring (a
+    answer 94 % of the returns, and hybrid as many to a twentieth of a percent (`pca` also answers where its window
+    fitted to the slope spans a plane and the first does not, which hybrid's survey does not take); the nearest 512 points of a ball lie on one ring (a
     line: no normal) for half."""
     s = _range("lidar")
     assert s.answered("window").mean() > LIDAR_WINDOW_COVERAGE
-    assert s.answered("hybrid").mean() >= s.answered("window").mean() - 1e-3
+    assert s.answered("hybrid").mean() >= s.answered("window").mean() - 5e-4
     assert s.answered("pca").mean() < 0.75 * s.answered("window").mean()
 
 

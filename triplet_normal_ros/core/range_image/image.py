@@ -46,10 +46,9 @@ JUMP_RANGE_FRACTION = 0.04
 #: range, under JUMP_RANGE_FRACTION, so its walls stand where they did.
 GRAZING_TAN = math.tan(math.radians(85.0))
 #: `pca` fits each pixel's window to the slope of the plane at the centre of its block of SLOPE_STRIDE × SLOPE_STRIDE
-#: pixels (`MomentImage.fitted_planes`): one pixel from any of its pixels, so the slope is its own surface's but for
-#: a step at a fold, and a ninth of the first windows are fitted. On frames of seeds eval does not score, a slope from
-#: every pixel's own first window and one from a block centre 2 or 3 pixels away gave the same error to 1-3 %
-#: (docs/HISTORY.md, "Window `pca` fitted to the slope").
+#: pixels (`MomentImage.fitted_planes`): at most two pixels from any of its pixels, so the slope is its own surface's
+#: but where the block straddles a fold or a depth jump, and only a 25th of the first windows are fitted. A slope from
+#: each pixel's own first window gives the same error (docs/HISTORY.md, "Window `pca` fitted to the slope").
 SLOPE_STRIDE = 5
 #: How many steps a window shrinks in while a wall crosses it (a binary search over these levels).
 SHRINK_LEVELS = 16

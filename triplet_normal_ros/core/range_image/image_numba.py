@@ -110,8 +110,9 @@ class CompiledImage:
         return normals, curvature
 
     def normals(self, radius: float, range_scale: float = 0.0, pixels: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """`MomentImage.fitted_planes` then `finish` in one pass per pixel (`window_normals`), for `pca`, which reads
-        nothing else of the windows; `finite` then reads the ranges it computed."""
+        """`MomentImage.fitted_planes` then `finish` (`window_normals`: the block centres' slopes, then one pass per
+        pixel to the finished answer), for `pca`, which reads nothing else of the windows; `finite` then reads the
+        ranges it computed."""
         normals, curvature, ranges = window_normals(
             self.points.numpy(), self.pitch_row.numpy(), self.pitch_col.numpy(), float(radius), float(range_scale),
             float(pixels),
