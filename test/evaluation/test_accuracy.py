@@ -308,8 +308,8 @@ def test_hybrid_on_depth_frames_beats_pca_everywhere_and_learned_overall():
 def test_on_lidar_scans_the_preset_windows_answer_where_the_nearest_pool_holds_one_ring():
     """RESULTS ("LiDAR neighbourhoods"): with the preset's ball growing with range, the windows span three beams and
     answer 94 % of the returns, and hybrid as many to a twentieth of a percent (`pca` also answers where its window
-    fitted to the slope spans a plane and the first does not, which hybrid's survey does not take); the nearest 512 points of a ball lie on one ring (a
-    line: no normal) for half."""
+    fitted to the slope spans a plane and the first does not, which hybrid's survey does not take); the nearest 512
+    points of a ball lie on one ring (a line: no normal) for half."""
     s = _range("lidar")
     assert s.answered("window").mean() > LIDAR_WINDOW_COVERAGE
     assert s.answered("hybrid").mean() >= s.answered("window").mean() - 5e-4
