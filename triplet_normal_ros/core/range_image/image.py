@@ -140,19 +140,20 @@ class MomentImage:
         obliquely it reaches past the ball and across a fold; the fitted one covers the ball on the surface
         (`on_slope`), as the pool path's ball does (docs/HISTORY.md, "Window `pca` fitted to the slope")."""
         first = self.pca(radius, range_scale, pixels)
+        plane = ray_noise_normal(first)
         half_row, half_col, walls, flat = self._sizing
-        stretch_row, stretch_col = self.block_stretch(first)
+        stretch_row, stretch_col = self.block_stretch(plane, first.valid)
         fitted = self._fit(shrink(half_row, stretch_row), shrink(half_col, stretch_col), walls, flat)
         keep = fitted.valid.unsqueeze(-1)
-        normal = torch.where(keep, ray_noise_normal(fitted), ray_noise_normal(first))
+        normal = torch.where(keep, ray_noise_normal(fitted), plane)
         return normal, torch.where(keep, fitted.eigvals, first.eigvals), fitted.valid | first.valid
 
-    def block_stretch(self, fit: WindowPCA) -> tuple[torch.Tensor, torch.Tensor]:
-        """(H, W) per image axis (rows, columns): the stretch (`_stretch`) of `fit`'s ray-noise plane at the centre of
-        each pixel's SLOPE_STRIDE block, 1 where that centre is a hole or its window not valid."""
+    def block_stretch(self, plane: torch.Tensor, valid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(H, W) per image axis (rows, columns): the stretch (`_stretch`) of the windows' `plane` (N, 3) at the
+        centre of each pixel's SLOPE_STRIDE block, 1 where that centre is a hole or its window not `valid` (N,)."""
         rows, cols = block_centres(self.height, self.device), block_centres(self.width, self.device)
-        usable = (fit.valid & self.finite.reshape(-1)).unsqueeze(-1)
-        plane = torch.where(usable, ray_noise_normal(fit), 0.0).view(self.height, self.width, 3)[rows][:, cols]
+        usable = (valid & self.finite.reshape(-1)).unsqueeze(-1)
+        plane = torch.where(usable, plane, 0.0).view(self.height, self.width, 3)[rows][:, cols]
         rays = self.rays[rows][:, cols]
         block_row = torch.arange(self.height, device=self.device) // SLOPE_STRIDE
         block_col = torch.arange(self.width, device=self.device) // SLOPE_STRIDE
@@ -261,9 +262,8 @@ def on_slope(half_row: torch.Tensor, half_col: torch.Tensor, normal: torch.Tenso
     meeting a box. Each axis' half-width is divided by that stretch (`_stretch`), rounded half to even, but never
     below one pixel (a window must span two scan lines); a zero normal keeps the half-width.
     """
-    return shrink(half_row, _stretch(normal, rays, _ray_turn(rays, 0))), shrink(
-        half_col, _stretch(normal, rays, _ray_turn(rays, 1))
-    )
+    rows = shrink(half_row, _stretch(normal, rays, _ray_turn(rays, 0)))
+    return rows, shrink(half_col, _stretch(normal, rays, _ray_turn(rays, 1)))
 
 
 def shrink(half: torch.Tensor, stretch: torch.Tensor) -> torch.Tensor:
