@@ -67,12 +67,17 @@ def _frames() -> dict[str, tuple[np.ndarray, tuple[int, int], float, float, np.n
 FRAMES = _frames()
 
 
-def _fits(name: str):
+def _fits(name: str, pixels: int = 0):
+    """Both backends' images of a frame and their windows (`pca`), of about `pixels` pixels at most where not 0."""
     points, shape, radius, scale, _ = FRAMES[name]
     cloud = torch.from_numpy(points)
     pitch = range_pitch(cloud, shape)
     images = [MomentImage(cloud, shape, pitch), CompiledImage(cloud, shape, pitch)]
-    return images, [image.pca(radius, scale) for image in images]
+    return images, [image.pca(radius, scale, pixels) for image in images]
+
+
+#: The window caps the twins are compared at: the whole ball, and about k pixels as hybrid's survey takes them.
+CAPS = [0, PCA_DEFAULT_K]
 
 
 # The share of valid pixels whose z may differ between the backends beyond roundoff (see the survey test)
@@ -106,9 +111,10 @@ def _assert_same_gates(reference, compiled, valid: torch.Tensor) -> None:
     assert int(differ.sum()) <= MAY_DIFFER * int(valid.sum())
 
 
+@pytest.mark.parametrize("pixels", CAPS)
 @pytest.mark.parametrize("name", sorted(FRAMES))
-def test_the_compiled_windows_are_the_torch_windows(name: str) -> None:
-    (_, _), (torch_fit, fused_fit) = _fits(name)
+def test_the_compiled_windows_are_the_torch_windows(name: str, pixels: int) -> None:
+    (_, _), (torch_fit, fused_fit) = _fits(name, pixels)
     for reference, compiled in zip(torch_fit.box, fused_fit.box, strict=True):
         assert torch.equal(reference, compiled)
     assert torch.equal(torch_fit.valid, fused_fit.valid) and torch.equal(torch_fit.count, fused_fit.count)
@@ -119,6 +125,25 @@ def test_the_compiled_windows_are_the_torch_windows(name: str) -> None:
     assert float(((torch_fit.eigvals[valid] - fused_fit.eigvals[valid]).abs() / scale).max()) < 1e-9
     assert torch.allclose(torch_fit.mean[valid], fused_fit.mean[valid], rtol=0, atol=1e-9)
     assert torch.allclose(torch_fit.cov[valid], fused_fit.cov[valid], rtol=1e-6, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", sorted(FRAMES))
+def test_windows_refitted_at_a_cap_are_the_windows_fitted_at_it(name: str) -> None:
+    """Hybrid fits the whole ball's windows, then the same image's at about k pixels (`pca_capped`); the compiled
+    refit searches only the windows the cap changes and keeps the others: every field is what a fit at that cap
+    gives, bit for bit."""
+    points, shape, radius, scale, _ = FRAMES[name]
+    cloud = torch.from_numpy(points)
+    pitch = range_pitch(cloud, shape)
+    image = CompiledImage(cloud, shape, pitch)
+    whole = image.pca(radius, scale)
+    refit = image.pca_capped(PCA_DEFAULT_K)
+    direct = CompiledImage(cloud, shape, pitch).pca(radius, scale, PCA_DEFAULT_K)
+    for field in ("normal", "eigvals", "count", "valid", "mean", "cov", "box"):
+        torch.testing.assert_close(getattr(refit, field), getattr(direct, field), rtol=0, atol=0, equal_nan=True)
+    kept = torch.stack(whole.box).eq(torch.stack(direct.box)).all(dim=0) & whole.valid
+    if name.startswith("simulated depth"):
+        assert 0.05 < float(kept.float().mean()) < 0.95, "the cap changes some of these windows and keeps others"
 
 
 @pytest.mark.parametrize("name", sorted(FRAMES))
@@ -136,11 +161,12 @@ def test_the_compiled_survey_is_the_torch_survey(name: str) -> None:
     _assert_same_gates(torch_cue, cue, valid)
 
 
+@pytest.mark.parametrize("pixels", CAPS)
 @pytest.mark.parametrize("name", sorted(FRAMES))
-def test_the_compiled_slope_windows_are_the_torch_slope_windows(name: str) -> None:
+def test_the_compiled_slope_windows_are_the_torch_slope_windows(name: str, pixels: int) -> None:
     """Hybrid's second windows, fitted to the slope of the first survey plane, compiled and in torch: the same boxes,
     validity and counts, and the same planes to roundoff."""
-    images, fits = _fits(name)
+    images, fits = _fits(name, pixels)
     first = [
         torch.where(f.valid.unsqueeze(-1), survey_and_cue(i, f)[0], 0.0) for i, f in zip(images, fits, strict=True)
     ]
@@ -154,11 +180,12 @@ def test_the_compiled_slope_windows_are_the_torch_slope_windows(name: str) -> No
     assert bool(shrunk[0].any()), "some window on these frames sees its surface obliquely and is fitted to it"
 
 
+@pytest.mark.parametrize("pixels", CAPS)
 @pytest.mark.parametrize("name", sorted(FRAMES))
-def test_the_compiled_sloped_survey_and_its_gate_are_the_torch_ones(name: str) -> None:
+def test_the_compiled_sloped_survey_and_its_gate_are_the_torch_ones(name: str, pixels: int) -> None:
     """The survey hybrid answers with and the cue its gate reads, both from the slope-fitted windows: compiled and in
     torch, the same normals to roundoff and the gate open on the same pixels."""
-    images, fits = _fits(name)
+    images, fits = _fits(name, pixels)
     (torch_normal, torch_cue), (normal, cue) = (
         survey_on_slope(i, f, *survey_and_cue(i, f)) for i, f in zip(images, fits, strict=True)
     )
@@ -257,12 +284,13 @@ def test_the_compiled_pitch_is_the_torch_pitch(name: str) -> None:
                 torch.testing.assert_close(_GridRays(torch.from_numpy(grid)).pitch(axis), pitch, rtol=1e-6, atol=0)
 
 
+@pytest.mark.parametrize("pixels", CAPS)
 @pytest.mark.parametrize("name", sorted(FRAMES))
-def test_the_compiled_snap_to_sides_is_the_torch_snap(name: str) -> None:
+def test_the_compiled_snap_to_sides_is_the_torch_snap(name: str, pixels: int) -> None:
     """Hybrid's snap of gated answers to their one-sided windows (`sides.snap_to_sides`), compiled and in torch, on
     every valid pixel with its survey normal tilted 10° as the answer: the same planes chosen, to roundoff, except
     where a score or an angle lies within roundoff of its threshold (bounded by count)."""
-    images, fits = _fits(name)
+    images, fits = _fits(name, pixels)
     valid = fits[0].valid & images[0].finite.reshape(-1)
     pixels = np.flatnonzero(valid.numpy())
     survey = survey_and_cue(images[0], fits[0])[0][valid]

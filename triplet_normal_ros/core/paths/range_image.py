@@ -18,7 +18,7 @@ from ..range_image.image import MomentImage
 from ..range_image.image_numba import CompiledImage
 from ..range_image.lattice import agreed, plan_lattice
 from ..range_image.sides import snap_to_sides
-from ..range_image.survey import PART_SPAN, opens, survey_and_cue, survey_on_slope
+from ..range_image.survey import PART_SPAN, opens, survey_and_cue, survey_normal, survey_on_slope
 from ..search.pools import PoolSearch, ScanLines, open_search
 from .call import CHUNK, Call, Cloud, finish
 from .pools import hybrid_kernel, network_kernel, over_pools, pca_kernel
@@ -120,10 +120,17 @@ def window_hybrid(
     progress: Callable[[int], None] | None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Hybrid on an organized range image: the window survey everywhere (its ray-noise plane normal from the window
-    fitted to the slope, and PCL curvature), then pools (`open_pools()`, opened only when some point needs one) and the
-    network only where the parts of the first window or of the fitted one sit off its plane (`structure`,
+    fitted to the slope, and PCL curvature), then pools (`open_pools()`, opened only when some point needs one) and
+    the network only where the parts of the first window or of the fitted one sit off its plane (`structure`,
     `survey_on_slope`), on a lattice of those points (`lattice_network`), each answer then snapped to the plane of the
     one-sided window on its own face where one fits far better than the whole window (`sides.snap_to_sides`).
+
+    The survey's planes come from windows of about `call.ball_size()` pixels at most (the nearest 500, or the
+    network's pool where larger, as the ball PCA the network is weighed against takes them), as window `pca` holds
+    about k: a near surface's whole ball spans thousands of pixels and its plane blurs across a fold the nearest
+    points never reach. The gate reads the whole ball's windows first: a fold anywhere in the ball is what the
+    network answers, and a window that sees it only when it straddles it leaves a ramp of blurred normals beside the
+    edge that a segmentation leaks through (docs/HISTORY.md, "Hybrid's survey from the nearest points").
 
     A window less than PART_SPAN pixels across on either axis (a spinning LiDAR's beams at range, a sliver beside
     an edge) cannot be cut into parts, so the cue is blind there; nor is a window that walls cut below three
@@ -133,8 +140,9 @@ def window_hybrid(
     answer."""
     s = call.settings
     with call.timed("survey"):
-        fit = image.pca(s.radius, s.range_scale)
-        first, cue = survey_and_cue(image, fit)
+        _, cue = survey_and_cue(image, image.pca(s.radius, s.range_scale))
+        fit = image.pca_capped(call.ball_size())
+        first = survey_normal(image, fit)
         survey, fitted = survey_on_slope(image, fit, first, cue)
         finite = image.finite.reshape(-1)
         valid = fit.valid & finite

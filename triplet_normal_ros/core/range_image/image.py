@@ -117,9 +117,17 @@ class MomentImage:
         `range_scale` > 0 each pixel's ball grows to max(radius, range_scale × its range) (a spinning LiDAR's rings
         part with range); with `pixels` > 0 no window spans more than about that many pixels (`_half_widths`)."""
         reach = float(radius) if range_scale == 0 else (self.range * range_scale).clamp_min(radius)
-        half_row, half_col = self._half_widths(reach, pixels)
         walls = _WallTable(self.range, *self._jump_thresholds(reach))
         flat = reach if isinstance(reach, float) else torch.nan_to_num(reach.reshape(-1), nan=radius)
+        self._ball = (reach, walls, flat)
+        return self.pca_capped(pixels)
+
+    def pca_capped(self, pixels: float) -> WindowPCA:
+        """After `pca`: every pixel's window again, of about `pixels` pixels at most where that is not 0, with
+        `pca`'s walls and reach; `pca_on_slope`, `fitted_planes` and `one_sided_boxes` then start from these. One image
+        serves windows of two sizes: hybrid's gate reads the whole ball's, its plane comes from the nearest points'."""
+        reach, walls, flat = self._ball
+        half_row, half_col = self._half_widths(reach, pixels)
         self._sizing = (half_row, half_col, walls, flat)
         return self._fit(half_row, half_col, walls, flat)
 

@@ -43,6 +43,8 @@ _TINY = np.finfo(np.float64).tiny
 #: The `slope` argument of `_pixels` that sizes windows from the range alone.
 _NO_SLOPE = np.zeros((0, 3))
 _NO_CHANGE = np.zeros(0, dtype=np.bool_)
+#: The `WindowPCA` fields of a fit, as `_empty_fit` names them.
+_FIELDS = ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")
 #: (up, down, left, right) of the four half windows, then the four quarter windows.
 _SIDES = np.array(ONE_SIDED, dtype=np.int64)
 #: A window's half-width at a shrink level is rounded(half × level / SHRINK_LEVELS); a power of two divides by a shift,
@@ -64,18 +66,28 @@ class CompiledImage:
         self.pitch_row, self.pitch_col = pitch
         self.fit: dict[str, np.ndarray] = {}
 
-    def pca(self, radius: float, range_scale: float = 0.0) -> WindowPCA:
-        """`MomentImage.pca`; the raw arrays stay in `fit` for `survey`."""
-        out = window_pca(
+    def pca(self, radius: float, range_scale: float = 0.0, pixels: float = 0.0) -> WindowPCA:
+        """`MomentImage.pca`; the raw arrays stay in `fit` for `survey`, the slope's windows and the snap's."""
+        self._tables = _tables(
             self.points.numpy(), self.pitch_row.numpy(), self.pitch_col.numpy(), float(radius), float(range_scale)
         )
-        self.fit = out
         self._radius, self._scaled = float(radius), range_scale != 0
-        self.table = torch.from_numpy(out["table"])
-        self.offset = torch.from_numpy(out["offset"])
+        self.fit = {}
+        self.table = torch.from_numpy(self._tables["table"])
+        self.offset = torch.from_numpy(self._tables["offset"])
+        return self.pca_capped(pixels)
+
+    def pca_capped(self, pixels: float) -> WindowPCA:
+        """`MomentImage.pca_capped`: `pca`'s tables, walls and reach, the windows again; `fit` becomes theirs. After a
+        fit, only the windows whose half-widths the new cap changes are fitted again (`window_refit`)."""
+        if self.fit:
+            out = window_refit(self.fit, self._radius, float(pixels))
+        else:
+            out = window_fit(self._tables, self._radius, float(pixels))
+        self.fit = out
         t = {name: torch.from_numpy(out[name]) for name in ("normal", "eigvals", "count", "valid", "mean", "cov")}
         box = tuple(torch.from_numpy(out["box"][i]) for i in range(4))
-        reach = float(radius) if range_scale == 0 else torch.from_numpy(out["reach"])
+        reach = self._radius if not self._scaled else torch.from_numpy(out["reach"])
         return WindowPCA(t["normal"], t["eigvals"], t["count"], t["valid"], reach, t["mean"], t["cov"], box)
 
     @property
@@ -179,22 +191,43 @@ def warm() -> CompiledImage:
 
 
 def window_pca(
-    points: np.ndarray, pitch_row: np.ndarray, pitch_col: np.ndarray, radius: float, range_scale: float
-) -> dict[str, np.ndarray]:
+    points: np.ndarray, pitch_row: np.ndarray, pitch_col: np.ndarray, radius: float, range_scale: float,
+    pixels: float = 0.0,
+) -> dict[str, np.ndarray]:  # fmt: skip
     """Window PCA of every pixel of an (H, W, 3) organized cloud (NaN holes) with the per-row and per-column ray
-    pitch: the moment table and offset `MomentImage` keeps, and the `WindowPCA` fields, as numpy arrays."""
-    tables = _tables(points, pitch_row, pitch_col, radius, range_scale)
+    pitch, windows of about `pixels` pixels at most where that is not 0 (`window_fit` of `_tables`)."""
+    return window_fit(_tables(points, pitch_row, pitch_col, radius, range_scale), radius, pixels)
+
+
+def window_fit(tables: dict[str, np.ndarray], radius: float, pixels: float) -> dict[str, np.ndarray]:
+    """Every pixel's window over `_tables`' image, of about `pixels` pixels at most where that is not 0: the tables
+    (the moment table and offset `MomentImage` keeps), the `WindowPCA` fields, as numpy arrays, and the cap (`cap`,
+    0-d), which the windows fitted to the slope and the one-sided windows keep, as `MomentImage`'s half-widths do."""
     height, width = tables["ranges"].shape
     fit = _empty_fit(height * width)
     bands(
         _pixels, height, tables["table"], tables["counts"], tables["points"], tables["ranges"], tables["reach_grid"],
         tables["pitch_row"], tables["pitch_col"], tables["col_walls"], tables["row_walls"], float(radius),
-        _NO_SLOPE, _NO_CHANGE,
-        *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
-        pieces=4,
+        float(pixels), 0.0, _NO_SLOPE, _NO_CHANGE, *(fit[name] for name in _FIELDS), pieces=4,
     )  # fmt: skip
     fit["mean"] += tables["offset"]
-    return {**tables, **fit}
+    return {**tables, **fit, "cap": np.array(float(pixels))}
+
+
+def window_refit(out: dict[str, np.ndarray], radius: float, pixels: float) -> dict[str, np.ndarray]:
+    """`window_fit` at the cap `pixels` after `out`, a fit at another cap over the same tables: the pixels whose
+    half-widths the cap leaves as they were keep `out`'s windows (the same box, so the same fit) and only the others
+    are searched and fitted again; on a depth frame the cap of hybrid's survey changes about half of them."""
+    height, width = out["ranges"].shape
+    n = height * width
+    fit, changed = _empty_fit(n), np.zeros(n, dtype=np.bool_)
+    bands(
+        _pixels, height, out["table"], out["counts"], out["points"], out["ranges"], out["reach_grid"],
+        out["pitch_row"], out["pitch_col"], out["col_walls"], out["row_walls"], float(radius), float(pixels),
+        float(out["cap"]), _NO_SLOPE, changed, *(fit[name] for name in _FIELDS), pieces=4,
+    )  # fmt: skip
+    bands(_keep_first, n, changed, out["offset"], *(out[name] for name in _FIELDS), *(fit[name] for name in _FIELDS))
+    return {**out, **fit, "cap": np.array(float(pixels))}
 
 
 def window_normals(
@@ -268,13 +301,17 @@ def window_pca_on_slope(
     bands(
         _pixels, height, out["table"], out["counts"], points, out["ranges"], out["reach_grid"],
         np.ascontiguousarray(pitch_row, dtype=np.float64), np.ascontiguousarray(pitch_col, dtype=np.float64),
-        out["col_walls"], out["row_walls"], float(radius), np.ascontiguousarray(slope, dtype=np.float64), changed,
-        *(fit[name] for name in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")),
-        pieces=4,
+        out["col_walls"], out["row_walls"], float(radius), float(out["cap"]), 0.0,
+        np.ascontiguousarray(slope, dtype=np.float64), changed, *(fit[name] for name in _FIELDS), pieces=4,
     )  # fmt: skip
-    names = ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach")
     bands(
-        _keep_first, n, changed, out["offset"], *(out[name] for name in names), *(fit[name] for name in names), pieces=4
+        _keep_first,
+        n,
+        changed,
+        out["offset"],
+        *(out[name] for name in _FIELDS),
+        *(fit[name] for name in _FIELDS),
+        pieces=4,
     )
     return fit
 
@@ -651,10 +688,12 @@ def _window(r, c, half_row, half_col, counts, col_walls, row_walls, height, widt
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _pixels(
-    table, counts, points, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, radius, slope, changed,
-    normal, eigvals, count, valid, mean, cov, box, flat_reach, lo, hi,
+    table, counts, points, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, radius, pixels, first_cap,
+    slope, changed, normal, eigvals, count, valid, mean, cov, box, flat_reach, lo, hi,
 ):  # fmt: skip
-    """Each pixel's window, its moments, PCA and validity (`MomentImage.pca` and `image._window_pca`); with a
+    """Each pixel's window (of about `pixels` pixels at most, where that is not 0), its moments, PCA and validity
+    (`MomentImage.pca` and `image._window_pca`); with a non-empty `changed` and no `slope`, only the pixels whose
+    half-widths differ from those at the cap `first_cap` are fitted and marked in `changed` (`window_refit`); with a
     `slope` (H·W, 3) rather than an empty one, each axis' half-width is first divided by the stretch of that plane along
     it (`MomentImage.pca_on_slope`), and only the pixels whose window that changes are fitted and marked in `changed`:
     the others' windows, and so their fits, are the first pass's."""
@@ -662,7 +701,7 @@ def _pixels(
     for r in range(lo, hi):
         for c in range(width):
             i = r * width + c
-            half_row, half_col = _half_widths(ranges, reach, pitch_row, pitch_col, r, c, 0.0)
+            half_row, half_col = _half_widths(ranges, reach, pitch_row, pitch_col, r, c, pixels)
             if slope.shape[0]:
                 sx, sy, sz = slope[i, 0], slope[i, 1], slope[i, 2]
                 if sx == 0.0 and sy == 0.0 and sz == 0.0:
@@ -673,6 +712,11 @@ def _pixels(
                     continue
                 changed[i] = True
                 half_row, half_col = rows, cols
+            elif changed.shape[0]:
+                rows, cols = _half_widths(ranges, reach, pitch_row, pitch_col, r, c, first_cap)
+                if rows == half_row and cols == half_col:
+                    continue
+                changed[i] = True
             flat_reach[i] = radius if np.isnan(reach[r, c]) else reach[r, c]
             top, bottom, left, right = _window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width)
             box[0, i], box[1, i], box[2, i], box[3, i] = top, bottom, left, right

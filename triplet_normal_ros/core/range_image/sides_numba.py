@@ -23,22 +23,23 @@ def snap_to_sides(
     sharper: float,
     cos_snap: float,
 ) -> np.ndarray:
-    """`sides.snap_to_sides` on `window_pca`'s `fit` (its table, walls, ranges and reach), the image's per-row and
-    per-column `pitch`, the cloud's (H·W, 3) `points`, at the flat `pixels`: float32 (M, 3)."""
+    """`sides.snap_to_sides` on `window_pca`'s `fit` (its table, walls, ranges, reach and window cap), the image's
+    per-row and per-column `pitch`, the cloud's (H·W, 3) `points`, at the flat `pixels`: float32 (M, 3)."""
     out = np.ascontiguousarray(answers, dtype=np.float64).copy()
     bands(
         _snap, len(pixels), np.ascontiguousarray(pixels, dtype=np.int64), fit["table"], fit["counts"], fit["offset"],
         fit["ranges"], fit["reach_grid"], np.ascontiguousarray(pitch[0], dtype=np.float64),
         np.ascontiguousarray(pitch[1], dtype=np.float64), fit["col_walls"], fit["row_walls"], fit["eigvals"],
-        np.ascontiguousarray(points, dtype=np.float64), float(sharper), float(cos_snap), int(PART_SPAN), out, pieces=4,
+        np.ascontiguousarray(points, dtype=np.float64), float(fit["cap"]), float(sharper), float(cos_snap),
+        int(PART_SPAN), out, pieces=4,
     )  # fmt: skip
     return out.astype(np.float32)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _snap(
-    pixels, table, counts, offset, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, whole, points, sharper,
-    cos_snap, part_span, out, lo, hi,
+    pixels, table, counts, offset, ranges, reach, pitch_row, pitch_col, col_walls, row_walls, whole, points, cap,
+    sharper, cos_snap, part_span, out, lo, hi,
 ):  # fmt: skip
     height, width = ranges.shape
     eigvals, axis = np.empty(3), np.empty(3)
@@ -49,7 +50,7 @@ def _snap(
         p = pixels[i]
         r, c = p // width, p % width
         px, py, pz = points[p, 0] - offset[0], points[p, 1] - offset[1], points[p, 2] - offset[2]
-        half_row, half_col = _half_widths(ranges, reach, pitch_row, pitch_col, r, c, 0.0)
+        half_row, half_col = _half_widths(ranges, reach, pitch_row, pitch_col, r, c, cap)
         nearest, bx, by, bz = cos_snap, ax, ay, az
         for s in range(len(_SIDES)):
             top, bottom, left, right, _ = _largest_clear(

@@ -49,6 +49,14 @@ def survey_and_cue(image: MomentImage, fit: WindowPCA) -> tuple[torch.Tensor, St
     return torch.from_numpy(normal), Structure(torch.from_numpy(z), torch.from_numpy(bend))
 
 
+def survey_normal(image: MomentImage, fit: WindowPCA) -> torch.Tensor:
+    """`survey_and_cue`'s normal alone, for windows whose parts nothing reads."""
+    if not image.compiled:
+        return ray_noise_normal(fit)
+    normal, _, _ = survey_numba.survey(image.table.numpy(), image.offset.numpy(), image.fit, parts=False)
+    return torch.from_numpy(normal)
+
+
 def survey_on_slope(
     image: MomentImage, fit: WindowPCA, survey: torch.Tensor, cue: Structure
 ) -> tuple[torch.Tensor, Structure]:

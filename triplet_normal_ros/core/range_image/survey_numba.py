@@ -14,26 +14,34 @@ from ..config.conventions import MIN_NEIGHBOURS
 from . import image_numba
 from .image_numba import _box, ray_noise_normal
 
+#: The first-moment table `survey` passes where it reads no parts: of the same type, so the same compiled kernel.
+_NO_TABLE = np.zeros((1, 1, 4))
 
-def survey(table: np.ndarray, offset: np.ndarray, fit: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+
+def survey(
+    table: np.ndarray, offset: np.ndarray, fit: dict[str, np.ndarray], parts: bool = True
+) -> tuple[np.ndarray, ...]:
     """Hybrid's window survey compiled: each window's ray-noise plane normal (`survey.ray_noise_normal`) and the
-    z score and bend of its parts along that normal (`survey.structure`), from `window_pca`'s table and fit."""
+    z score and bend of its parts along that normal (`survey.structure`; zero unless `parts`), from `window_pca`'s
+    table and fit."""
     n = len(fit["count"])
     normal, z, bend = np.empty((n, 3)), np.zeros(n), np.zeros(n)
-    first = np.ascontiguousarray(table[..., :4])
+    first = np.ascontiguousarray(table[..., :4]) if parts else _NO_TABLE
     bands(
         _survey, n, first, offset, fit["normal"], fit["eigvals"], fit["count"], fit["mean"], fit["cov"], fit["box"],
-        fit["reach"], normal, z, bend, pieces=4,
+        fit["reach"], bool(parts), normal, z, bend, pieces=4,
     )  # fmt: skip
     return normal, z, bend
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _survey(first, offset, pca, eigvals, count, mean, cov, box, reach, normal, z, bend, lo, hi):
+def _survey(first, offset, pca, eigvals, count, mean, cov, box, reach, parts, normal, z, bend, lo, hi):
     for i in range(lo, hi):
         mx, my, mz = mean[i, 0], mean[i, 1], mean[i, 2]
         nx, ny, nz = ray_noise_normal(cov[i], mx, my, mz, eigvals[i, 2], pca[i, 0], pca[i, 1], pca[i, 2])
         normal[i, 0], normal[i, 1], normal[i, 2] = nx, ny, nz
+        if not parts:
+            continue
         z[i], bend[i] = _parts(first, offset, box[0, i], box[1, i], box[2, i], box[3, i], count[i], reach[i],
                                mx - offset[0], my - offset[1], mz - offset[2], nx, ny, nz, cov[i])  # fmt: skip
 
@@ -75,3 +83,4 @@ def warm() -> None:
     """Compile (or load from the cache) the windows' kernels and the survey's, so that no cloud waits for them."""
     fit = image_numba.warm().fit
     survey(fit["table"], fit["offset"], fit)
+    survey(fit["table"], fit["offset"], fit, parts=False)
