@@ -53,3 +53,18 @@ def test_gpu_check_table_writes_a_failed_row_and_fails(tmp_path: Path) -> None:
     assert block.startswith("Command: `.venv/bin/python docs/tools/gpu_check.py table"), block
     assert "| compare | cuda | 1.5 | a / b | **FAILED** |" in block
     assert block.endswith("gpu_check: 1 of 2 ok, 1 FAILED")
+
+
+def test_window_stages_times_every_stage_of_the_compiled_window_path() -> None:
+    """The study calls the window path's stages as `window_normals` runs them, so a kernel whose signature changes
+    breaks it here rather than on the next person who runs it."""
+    done = run_tool("window_stages.py", "--frames", "1", "--repeats", "1")
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = [
+        [cell.strip() for cell in line.strip("|").split("|")]
+        for line in done.stdout.splitlines()
+        if line.startswith("| eval depth 0 | ")
+    ]
+    timed = [row for row in rows if len(row) == 7]  # frame, threads, whole and the four stages
+    assert timed and len(rows) == len(timed) + 1, done.stdout  # then the frame's census
+    assert all(float(cell) > 0 for row in timed for cell in row[2:]), timed

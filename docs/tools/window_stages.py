@@ -2,11 +2,13 @@
 thread and at torch's thread count, so that a speed change can be aimed at the stage that costs.
 
 Stages, in the order `estimate` runs them: the grid check (`route.plan_cloud`: scan lines, points at the origin and
-the ray pitch), the tables (`image_numba._tables`: ranges, the moment table about the cloud's mean, the wall tables)
-and the one-pass kernel (`image_numba._normals`: each pixel's window, its moments, eigen-decomposition, validity and
-ray-noise plane); *whole* is one `estimate` of the frame, the stages and the glue between them. Each figure is the
-fastest of `--repeats` calls after a warm-up (the least disturbed by other work), on the first `--frames` of eval's
-depth frames (`range_scans.depth_frames(n, 0)`, the `eval-depth` block's), at the depth radius and the default k. A
+the ray pitch), the tables (`image_numba._tables`: ranges, the moment table about the cloud's mean, the wall tables),
+the slopes (`image_numba.block_stretches`: the first window's plane at each 5 × 5 block's centre) and the one-pass
+kernel (`image_numba.fitted_normals`: each pixel's window fitted to its block's slope, its moments,
+eigen-decomposition, validity and ray-noise plane); *whole* is one `estimate` of the frame, the stages and the glue
+between them. Each figure is the fastest of `--repeats` calls after a warm-up (the least disturbed by other work), on
+the first `--frames` of eval's depth frames (`range_scans.depth_frames(n, 0)`, the `eval-depth` block's), at the depth
+radius and the default k. A
 second table counts the windows the kernel had to search: cut by a wall (a shrunk centred box, a binary search over
 the shrink levels) and cut below half their reach (the one-sided halves and quarters too), which cost most per pixel.
 
@@ -23,7 +25,6 @@ import numpy as np
 import torch
 from numba import njit
 
-from triplet_normal_ros.core.bands import bands
 from triplet_normal_ros.core.config.conventions import DEPTH_RADIUS, PCA_DEFAULT_K
 from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.core.range_image import image_numba
@@ -55,23 +56,14 @@ def _prepared(points: np.ndarray, shape: tuple[int, int]) -> tuple:
 def stage_times(points: np.ndarray, shape: tuple[int, int], repeats: int) -> dict[str, float]:
     """Milliseconds per stage of one frame at torch's present thread count."""
     estimator, cloud, grid, rows, cols, tables = _prepared(points, shape)
+    stretch = image_numba.block_stretches(tables, PCA_DEFAULT_K)
     return {
         "whole": fastest(lambda: estimator.estimate(points, shape=shape), repeats),
         "grid check": fastest(lambda: plan_cloud(estimator.settings, estimator.device, cloud, shape), repeats),
         "tables": fastest(lambda: image_numba._tables(grid, rows, cols, DEPTH_RADIUS, 0.0), repeats),
-        "kernel": fastest(lambda: _kernel(tables), repeats),
+        "slopes": fastest(lambda: image_numba.block_stretches(tables, PCA_DEFAULT_K), repeats),
+        "kernel": fastest(lambda: image_numba.fitted_normals(tables, PCA_DEFAULT_K, stretch), repeats),
     }
-
-
-def _kernel(tables: dict[str, np.ndarray]) -> None:
-    height, width = tables["ranges"].shape
-    normals = np.empty((height * width, 3), dtype=np.float32)
-    curvature = np.empty(height * width, dtype=np.float32)
-    bands(
-        image_numba._normals, height, tables["table"], tables["counts"], tables["offset"], tables["ranges"],
-        tables["reach_grid"], tables["pitch_row"], tables["pitch_col"], tables["col_walls"], tables["row_walls"],
-        float(PCA_DEFAULT_K), normals, curvature, pieces=4,
-    )  # fmt: skip
 
 
 @njit(cache=False)
@@ -107,8 +99,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=7, help="timed calls per stage; the fastest is kept")
     args = parser.parse_args()
     threads = torch.get_num_threads()
-    print("| frame | threads | whole ms | grid check ms | tables ms | kernel ms |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: |")
+    print("| frame | threads | whole ms | grid check ms | tables ms | slopes ms | kernel ms |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
     counts = []
     for seed, frame in enumerate(depth_frames(args.frames, 0)):
         points, shape = frame.points.reshape(-1, 3).astype(np.float64), frame.points.shape[:2]

@@ -241,18 +241,38 @@ def window_normals(
     arithmetic, so the same answers, without the eight per-pixel arrays of the fit that hybrid's survey reads (about
     50 MB on a 640x480 frame); of the first windows, only the block centres' are fitted."""
     t = _tables(points, pitch_row, pitch_col, radius, range_scale)
+    normals, curvature = fitted_normals(t, pixels, block_stretches(t, pixels))
+    return normals, curvature, t["ranges"]
+
+
+def block_stretches(t: dict[str, np.ndarray], pixels: float) -> np.ndarray:
+    """`window_normals`' first pass over `_tables`' image: (blocks down, blocks across, 2) the stretch along the rows
+    and the columns of the first window's ray-noise plane at each SLOPE_STRIDE block's centre."""
     height, width = t["ranges"].shape
-    blocks = (-(-height // SLOPE_STRIDE), -(-width // SLOPE_STRIDE))
-    stretch = np.empty((*blocks, 2))
-    sizing = (t["ranges"], t["reach_grid"], t["pitch_row"], t["pitch_col"], t["col_walls"], t["row_walls"])
-    bands(_block_stretch, blocks[0], t["points"], t["table"], t["counts"], t["offset"], *sizing, float(pixels), stretch)
+    stretch = np.empty((-(-height // SLOPE_STRIDE), -(-width // SLOPE_STRIDE), 2))
+    bands(
+        _block_stretch, len(stretch), t["points"], t["table"], t["counts"], t["offset"], *_sizing(t), float(pixels),
+        stretch,
+    )  # fmt: skip
+    return stretch
+
+
+def fitted_normals(t: dict[str, np.ndarray], pixels: float, stretch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`window_normals`' second pass over `_tables`' image: each pixel's window fitted to its block's `stretch`, its
+    PCA and finished answer (unit float32 normals and curvature)."""
+    height, width = t["ranges"].shape
     normals = np.empty((height * width, 3), dtype=np.float32)
     curvature = np.empty(height * width, dtype=np.float32)
     bands(
-        _normals, height, t["table"], t["counts"], t["offset"], *sizing, float(pixels), stretch, normals, curvature,
-        pieces=4,
+        _normals, height, t["table"], t["counts"], t["offset"], *_sizing(t), float(pixels), stretch, normals,
+        curvature, pieces=4,
     )  # fmt: skip
-    return normals, curvature, t["ranges"]
+    return normals, curvature
+
+
+def _sizing(t: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+    """What sizes and cuts a window, in the kernels' argument order: ranges, reach, pitch, wall tables."""
+    return t["ranges"], t["reach_grid"], t["pitch_row"], t["pitch_col"], t["col_walls"], t["row_walls"]
 
 
 def _tables(
