@@ -29,7 +29,7 @@ from triplet_normal_ros.core.range_image.check import range_pitch
 from triplet_normal_ros.core.range_image.image import MomentImage
 from triplet_normal_ros.core.range_image.image_numba import CompiledImage
 from triplet_normal_ros.core.range_image.sides import snap_to_sides
-from triplet_normal_ros.core.range_image.survey import survey_and_cue, survey_on_slope, window_z
+from triplet_normal_ros.core.range_image.survey import survey_and_cue, survey_normal, survey_on_slope, window_z
 from triplet_normal_ros.core.search.pools import ScanLines
 from triplet_normal_ros.evaluation.metrics import msae
 from triplet_normal_ros.io.bags import InputBag, decode_cloud
@@ -139,11 +139,30 @@ def test_windows_refitted_at_a_cap_are_the_windows_fitted_at_it(name: str) -> No
     whole = image.pca(radius, scale)
     refit = image.pca_capped(PCA_DEFAULT_K)
     direct = CompiledImage(cloud, shape, pitch).pca(radius, scale, PCA_DEFAULT_K)
-    for field in ("normal", "eigvals", "count", "valid", "mean", "cov", "box"):
+    for field in ("normal", "eigvals", "count", "valid", "mean", "cov", "box", "reach"):
         torch.testing.assert_close(getattr(refit, field), getattr(direct, field), rtol=0, atol=0, equal_nan=True)
+    assert float(image.fit["cap"]) == PCA_DEFAULT_K, "the slope's windows and the snap's read the refit's cap"
     kept = torch.stack(whole.box).eq(torch.stack(direct.box)).all(dim=0) & whole.valid
     if name.startswith("simulated depth"):
         assert 0.05 < float(kept.float().mean()) < 0.95, "the cap changes some of these windows and keeps others"
+
+
+@pytest.mark.parametrize("name", sorted(FRAMES))
+def test_hybrids_survey_in_its_own_order_is_the_same_on_both_engines(name: str) -> None:
+    """Hybrid's order on one image: the whole ball's windows and their cue, the windows of about k pixels and their
+    normal alone (`survey_normal`), then those fitted to its slope: the same survey normals to roundoff and the
+    same gate, from both cues, on both engines."""
+    images, _ = _fits(name)
+    _, _, radius, scale, _ = FRAMES[name]
+    results = []
+    for image in images:
+        cue = survey_and_cue(image, image.pca(radius, scale))[1]
+        fit = image.pca_capped(PCA_DEFAULT_K)
+        results.append((fit.valid, cue, *survey_on_slope(image, fit, survey_normal(image, fit), cue)))
+    (valid, torch_cue, torch_survey, torch_fitted), (_, cue, survey, fitted) = results
+    assert float((1 - (torch_survey[valid] * survey[valid]).sum(dim=1).abs()).max()) < 1e-12
+    _assert_same_gates(torch_cue, cue, valid)
+    _assert_same_gates(torch_fitted, fitted, valid)
 
 
 @pytest.mark.parametrize("name", sorted(FRAMES))

@@ -16,7 +16,7 @@ from triplet_normal_ros.core.estimator import NormalEstimator
 from triplet_normal_ros.evaluation.segmentation import adjusted_rand_index, region_segments
 from triplet_normal_ros.simulation.range_scans import fold_frames
 
-pytestmark = pytest.mark.slow  # three frames through hybrid and plain PCA: ~10 s (a first run generates the frames)
+pytestmark = pytest.mark.slow  # depth and fold frames through hybrid and plain PCA: ~20 s (more to generate them)
 
 FRAMES, QUERIES = 3, 5000
 #: Measured with the range checkpoint: MSAE 0.00704 overall and 0.06371 at the 1504 query pixels near an edge;

@@ -14,11 +14,11 @@ import torch
 from ..config.plan import Plan
 from ..pca.frames import surface_variation
 from ..range_image import lattice
-from ..range_image.image import MomentImage
+from ..range_image.image import MomentImage, WindowPCA
 from ..range_image.image_numba import CompiledImage
 from ..range_image.lattice import agreed, plan_lattice
 from ..range_image.sides import snap_to_sides
-from ..range_image.survey import PART_SPAN, opens, survey_and_cue, survey_normal, survey_on_slope
+from ..range_image.survey import PART_SPAN, Structure, opens, survey_and_cue, survey_normal, survey_on_slope
 from ..search.pools import PoolSearch, ScanLines, open_search
 from .call import CHUNK, Call, Cloud, finish
 from .pools import hybrid_kernel, network_kernel, over_pools, pca_kernel
@@ -133,21 +133,20 @@ def window_hybrid(
     edge that a segmentation leaks through (docs/HISTORY.md, "Hybrid's survey from the nearest points").
 
     A window less than PART_SPAN pixels across on either axis (a spinning LiDAR's beams at range, a sliver beside
-    an edge) cannot be cut into parts, so the cue is blind there; nor is a window that walls cut below three
-    points a fit. Those points take the pool path's own hybrid (the ball's plane, the quadric gate over the pool, the
-    network where it opens and departs from that plane), as they would without a grid, and the ball's curvature;
-    where the pool lies on one scan line (one LiDAR ring) a thin window that determines a plane keeps its own
-    answer."""
+    an edge) cannot be cut into parts, so the cue is blind there, the whole ball's or the survey's; nor is a window
+    that walls cut below three points a fit. Those points take the pool path's own hybrid (the ball's plane, the
+    quadric gate over the pool, the network where it opens and departs from that plane), as they would without a
+    grid, and the ball's curvature; where the pool lies on one scan line (one LiDAR ring) a thin window that
+    determines a plane keeps its own answer."""
     s = call.settings
     with call.timed("survey"):
-        _, cue = survey_and_cue(image, image.pca(s.radius, s.range_scale))
+        cue, blind = _whole_ball_cue(image, s.radius, s.range_scale)
         fit = image.pca_capped(call.ball_size())
         first = survey_normal(image, fit)
         survey, fitted = survey_on_slope(image, fit, first, cue)
         finite = image.finite.reshape(-1)
         valid = fit.valid & finite
-        top, bottom, left, right = fit.box
-        narrow = (bottom - top < PART_SPAN - 1) | (right - left < PART_SPAN - 1)
+        narrow = blind | _narrow(fit)
         thin = finite & (narrow | ~fit.valid)  # a window that walls cut below 3 points may still hold a ball
         structured = opens(cue, s.gate, s.bend) | opens(fitted, s.gate, s.bend)
         gated = valid & ~thin & structured
@@ -178,6 +177,19 @@ def window_hybrid(
         if progress is not None:
             progress(len(out))
     return normals, curvature
+
+
+def _whole_ball_cue(image: MomentImage, radius: float, range_scale: float) -> tuple[Structure, torch.Tensor]:
+    """The gate's first cue (`survey_and_cue`) over the windows of the whole ball (`image.pca`), and where those
+    windows are too narrow to cut into parts; the windows themselves are let go, the survey's come next."""
+    ball = image.pca(radius, range_scale)
+    return survey_and_cue(image, ball)[1], _narrow(ball)
+
+
+def _narrow(fit: WindowPCA) -> torch.Tensor:
+    """Where a window spans fewer than PART_SPAN pixels on either axis: its parts, and so its cue, say nothing."""
+    top, bottom, left, right = fit.box
+    return (bottom - top < PART_SPAN - 1) | (right - left < PART_SPAN - 1)
 
 
 def lattice_network(

@@ -124,8 +124,10 @@ class MomentImage:
 
     def pca_capped(self, pixels: float) -> WindowPCA:
         """After `pca`: every pixel's window again, of about `pixels` pixels at most where that is not 0, with
-        `pca`'s walls and reach; `pca_on_slope`, `fitted_planes` and `one_sided_boxes` then start from these. One image
-        serves windows of two sizes: hybrid's gate reads the whole ball's, its plane comes from the nearest points'."""
+        `pca`'s walls and reach; `pca_on_slope` and `one_sided_boxes` then start from these. One image serves windows
+        of two sizes: hybrid's gate reads the whole ball's, its plane comes from the nearest points'. The functions
+        that take a fit with its image (`survey.survey_and_cue`, `sides.snap_to_sides`) read the image's latest
+        windows on a compiled image, so pass them this fit, not an earlier one."""
         reach, walls, flat = self._ball
         half_row, half_col = self._half_widths(reach, pixels)
         self._sizing = (half_row, half_col, walls, flat)
@@ -180,7 +182,8 @@ class MomentImage:
 
     def one_sided_boxes(self, pixels: np.ndarray) -> torch.Tensor:
         """After `pca`: (8, 4, M) int64 (top, bottom, left, right) of the four half and four quarter windows
-        (`ONE_SIDED`) of each of the flat `pixels`, each shrunk until no wall crosses it, at `pca`'s half-widths."""
+        (`ONE_SIDED`) of each of the flat `pixels`, each shrunk until no wall crosses it, at the half-widths of the
+        latest `pca` or `pca_capped`."""
         half_row, half_col, walls, _ = self._sizing
         index = torch.from_numpy(pixels).to(self.device)
         row, col = index // self.width, index % self.width

@@ -80,7 +80,7 @@ class CompiledImage:
     def pca_capped(self, pixels: float) -> WindowPCA:
         """`MomentImage.pca_capped`: `pca`'s tables, walls and reach, the windows again; `fit` becomes theirs. After a
         fit, only the windows whose half-widths the new cap changes are fitted again (`window_refit`)."""
-        if self.fit:
+        if "cap" in self.fit:
             out = window_refit(self.fit, self._radius, float(pixels))
         else:
             out = window_fit(self._tables, self._radius, float(pixels))
@@ -110,8 +110,9 @@ class CompiledImage:
         return self.table[..., :4].contiguous()
 
     def finish(self) -> tuple[np.ndarray, np.ndarray]:
-        """`call.finish` of `pca`'s windows and their surface variation (`frames.surface_variation`) in one
-        compiled pass: unit float32 normals and curvature, NaN where the window is not valid or the pixel a hole."""
+        """`call.finish` of the latest `pca` or `pca_capped` windows and their surface variation
+        (`frames.surface_variation`) in one compiled pass: unit float32 normals and curvature, NaN where the window is
+        not valid or the pixel a hole."""
         n = len(self.fit["count"])
         normals, curvature = np.empty((n, 3), dtype=np.float32), np.empty(n, dtype=np.float32)
         finite = ~np.isnan(self.fit["ranges"]).reshape(-1)
@@ -226,7 +227,15 @@ def window_refit(out: dict[str, np.ndarray], radius: float, pixels: float) -> di
         out["pitch_row"], out["pitch_col"], out["col_walls"], out["row_walls"], float(radius), float(pixels),
         float(out["cap"]), _NO_SLOPE, changed, *(fit[name] for name in _FIELDS), pieces=4,
     )  # fmt: skip
-    bands(_keep_first, n, changed, out["offset"], *(out[name] for name in _FIELDS), *(fit[name] for name in _FIELDS))
+    bands(
+        _keep_first,
+        n,
+        changed,
+        out["offset"],
+        *(out[name] for name in _FIELDS),
+        *(fit[name] for name in _FIELDS),
+        pieces=4,
+    )
     return {**out, **fit, "cap": np.array(float(pixels))}
 
 

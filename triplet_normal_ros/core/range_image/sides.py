@@ -41,9 +41,9 @@ _COS_SNAP = math.cos(math.radians(SNAP_DEGREES))
 def snap_to_sides(
     image: MomentImage, fit: WindowPCA, cloud: torch.Tensor, pixels: np.ndarray, answers: np.ndarray
 ) -> np.ndarray:
-    """(M, 3) float32: `answers` at the flat `pixels` (row · width + col) of `image`, after `image.pca` gave `fit`, each
-    replaced by the plane of its best one-sided part where one qualifies (module docstring), its sign kept; rows
-    with no answer (NaN) stay NaN."""
+    """(M, 3) float32: `answers` at the flat `pixels` (row · width + col) of `image`, after `image.pca` or
+    `pca_capped` gave `fit` (its latest windows), each replaced by the plane of its best one-sided part where one
+    qualifies (module docstring), its sign kept; rows with no answer (NaN) stay NaN."""
     if len(pixels) == 0:
         return answers
     if image.compiled:

@@ -1,11 +1,11 @@
 """Hybrid's window survey of an organized range image: the plane normal of each window, and whether its parts sit off
 that plane (the cue its gate reads).
 
-The survey's normal models noise along the sensor's rays (`ray_noise_normal`), the cue measures where the window's
-parts sit off that plane (`structure`), first on the windows sized from the range and then on those fitted to the
-slope (`survey_on_slope`); `opens` is the gate over the cue. A compiled image (`image_numba.CompiledImage`) takes the
-compiled twin (`survey_numba.survey`, the same values to roundoff). The path that runs it is
-`paths/range_image.py`; the gate over pools is `pca.frames.quadric_gain`.
+The survey's normal models noise along the sensor's rays (`ray_noise_normal`), the cue measures where a window's
+parts sit off its own such plane (`structure`), first on the windows over the whole ball and then on the survey's,
+fitted to the slope (`survey_on_slope`); `opens` is the gate over the cue. A compiled image
+(`image_numba.CompiledImage`) takes the compiled twin (`survey_numba.survey`, the same values to roundoff). The path
+that runs it is `paths/range_image.py`; the gate over pools is `pca.frames.quadric_gain`.
 """
 
 from __future__ import annotations
@@ -40,8 +40,9 @@ def window_z(gate: float) -> float:
 
 
 def survey_and_cue(image: MomentImage, fit: WindowPCA) -> tuple[torch.Tensor, Structure]:
-    """The survey's normal (`ray_noise_normal`) and the parts' cue along it (`structure`): compiled where the
-    windows were (`survey_numba.survey`, the same values to roundoff: test_fused.py), else in torch."""
+    """The survey's normal (`ray_noise_normal`) and the parts' cue along it (`structure`) of `fit`, the image's
+    latest windows: compiled where the windows were (`survey_numba.survey`, the same values to roundoff:
+    test_fused.py), else in torch."""
     if not image.compiled:
         survey = ray_noise_normal(fit)
         return survey, structure(image, fit, survey)
@@ -61,7 +62,8 @@ def survey_on_slope(
     image: MomentImage, fit: WindowPCA, survey: torch.Tensor, cue: Structure
 ) -> tuple[torch.Tensor, Structure]:
     """The survey's normal from windows fitted to the slope of its first plane (`image.on_slope`), where they fit one,
-    and the parts' cue (`structure`) of those same windows; where none fits, the first window's normal and `cue`.
+    and the parts' cue (`structure`) of those same windows; where none fits, `survey` (the normal of `fit`, the
+    windows the fitted ones start from) and `cue` (the gate's first cue, of whichever windows the caller read).
 
     A window sized from the range reaches past the ball on a surface seen at a grazing angle, across a fold where the
     range is continuous; the window fitted to the slope of the first survey's plane covers the ball on that surface.
