@@ -164,10 +164,7 @@ class CompiledImage:
 
     def pca_on_slope(self, normal: torch.Tensor) -> WindowPCA:
         """`MomentImage.pca_on_slope`, after `pca`."""
-        out = window_pca_on_slope(
-            self.points.numpy(), self.fit, self.pitch_row.numpy(), self.pitch_col.numpy(), self._radius,
-            normal.numpy(),
-        )  # fmt: skip
+        out = window_pca_on_slope(self.fit, self._radius, normal.numpy())
         self.slope_fit = out
         t = {name: torch.from_numpy(out[name]) for name in ("normal", "eigvals", "count", "valid", "mean", "cov")}
         box = tuple(torch.from_numpy(out["box"][i]) for i in range(4))
@@ -187,7 +184,7 @@ def warm() -> CompiledImage:
     image.pool_normals(np.arange(2), 0.3, 8, 1e-3, 16)
     image.pca(0.3, 0.1)
     image.finish()
-    window_pca_on_slope(grid, image.fit, pitch[0], pitch[1], 0.3, np.nan_to_num(image.fit["normal"]))
+    window_pca_on_slope(image.fit, 0.3, np.nan_to_num(image.fit["normal"]))
     return image
 
 
@@ -219,23 +216,7 @@ def window_refit(out: dict[str, np.ndarray], radius: float, pixels: float) -> di
     """`window_fit` at the cap `pixels` after `out`, a fit at another cap over the same tables: the pixels whose
     half-widths the cap leaves as they were keep `out`'s windows (the same box, so the same fit) and only the others
     are searched and fitted again; on a depth frame the cap of hybrid's survey changes about half of them."""
-    height, width = out["ranges"].shape
-    n = height * width
-    fit, changed = _empty_fit(n), np.zeros(n, dtype=np.bool_)
-    bands(
-        _pixels, height, out["table"], out["counts"], out["points"], out["ranges"], out["reach_grid"],
-        out["pitch_row"], out["pitch_col"], out["col_walls"], out["row_walls"], float(radius), float(pixels),
-        float(out["cap"]), _NO_SLOPE, changed, *(fit[name] for name in _FIELDS), pieces=4,
-    )  # fmt: skip
-    bands(
-        _keep_first,
-        n,
-        changed,
-        out["offset"],
-        *(out[name] for name in _FIELDS),
-        *(fit[name] for name in _FIELDS),
-        pieces=4,
-    )
+    fit = _fit_changed(out, radius, float(pixels), float(out["cap"]), _NO_SLOPE)
     return {**out, **fit, "cap": np.array(float(pixels))}
 
 
@@ -313,35 +294,29 @@ def _tables(
     }  # fmt: skip
 
 
-def window_pca_on_slope(
-    points: np.ndarray,
-    out: dict[str, np.ndarray],
-    pitch_row: np.ndarray,
-    pitch_col: np.ndarray,
-    radius: float,
-    slope: np.ndarray,
-) -> dict[str, np.ndarray]:
+def window_pca_on_slope(out: dict[str, np.ndarray], radius: float, slope: np.ndarray) -> dict[str, np.ndarray]:
     """`window_pca`'s windows again, with half-widths fitted to the slope of the plane `slope` (H·W, 3; zero where
-    there is none), reusing `out`'s tables, walls and reach (`image.MomentImage.pca_on_slope`)."""
-    points = np.ascontiguousarray(points, dtype=np.float64)
-    height, width = points.shape[:2]
+    there is none), reusing `out`'s tables, walls, reach and cap (`image.MomentImage.pca_on_slope`): the `WindowPCA`
+    fields alone."""
+    return _fit_changed(out, radius, float(out["cap"]), 0.0, np.ascontiguousarray(slope, dtype=np.float64))
+
+
+def _fit_changed(
+    out: dict[str, np.ndarray], radius: float, pixels: float, first_cap: float, slope: np.ndarray
+) -> dict[str, np.ndarray]:
+    """The `WindowPCA` fields of `out`'s image with windows sized again (`_pixels`: at the cap `pixels` against
+    `first_cap`, or fitted to `slope` where it is not empty): the windows that change are searched and fitted, the
+    others copied from `out` (`_keep_first`)."""
+    height, width = out["ranges"].shape
     n = height * width
     fit, changed = _empty_fit(n), np.zeros(n, dtype=np.bool_)
     bands(
-        _pixels, height, out["table"], out["counts"], points, out["ranges"], out["reach_grid"],
-        np.ascontiguousarray(pitch_row, dtype=np.float64), np.ascontiguousarray(pitch_col, dtype=np.float64),
-        out["col_walls"], out["row_walls"], float(radius), float(out["cap"]), 0.0,
-        np.ascontiguousarray(slope, dtype=np.float64), changed, *(fit[name] for name in _FIELDS), pieces=4,
+        _pixels, height, out["table"], out["counts"], out["points"], out["ranges"], out["reach_grid"],
+        out["pitch_row"], out["pitch_col"], out["col_walls"], out["row_walls"], float(radius), pixels, first_cap,
+        slope, changed, *(fit[name] for name in _FIELDS), pieces=4,
     )  # fmt: skip
-    bands(
-        _keep_first,
-        n,
-        changed,
-        out["offset"],
-        *(out[name] for name in _FIELDS),
-        *(fit[name] for name in _FIELDS),
-        pieces=4,
-    )
+    old, new = (tuple(f[name] for name in _FIELDS) for f in (out, fit))
+    bands(_keep_first, n, changed, out["offset"], *old, *new, pieces=4)
     return fit
 
 
