@@ -664,10 +664,23 @@ def _largest_clear(r, c, half_row, half_col, up, down, left, right, col_walls, r
     return top, bottom, lft, rgt, lo
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width):
-    """The pixel's window: the largest clear centred box, and where a wall cut it below half its reach, the fullest
-    of it and the one-sided halves, then (where every half was cut too) the quarters (`_one_sided_where_shrunk`)."""
+    """The pixel's window: the centred box where no wall crosses it, as on most pixels (about 95 % of a depth
+    frame's), else `_cut_window`. The test is written into the caller's loop: as a call, `_window` cost the one-pass
+    kernel about a seventh of its time."""
+    top, bottom = max(r - half_row, 0), min(r + half_row, height - 1)
+    left, right = max(c - half_col, 0), min(c + half_col, width - 1)
+    if _crossed(col_walls, row_walls, top, bottom, left, right):
+        top, bottom, left, right = _cut_window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width)
+    return top, bottom, left, right
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cut_window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width):
+    """The window of a pixel whose centred box a wall crosses: the largest clear centred box, and where a wall cut it
+    below half its reach, the fullest of it and the one-sided halves, then (where every half was cut too) the quarters
+    (`_one_sided_where_shrunk`)."""
     top, bottom, left, right, level = _largest_clear(
         r, c, half_row, half_col, 1, 1, 1, 1, col_walls, row_walls, height, width
     )
@@ -731,7 +744,7 @@ def _pixels(
             valid[i] = _valid_fit(counts, r, c, top, bottom, left, right, k, eigvals[i], normal[i])
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _half_widths(ranges, reach, pitch_row, pitch_col, r, c, pixels):
     """The window's half-widths in pixels per axis from the ball's angular radius, with `pixels` > 0 capped so that
     the window holds about that many (`MomentImage._half_widths`; the cap is `window_angle_cap`'s)."""
