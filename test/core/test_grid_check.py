@@ -212,3 +212,32 @@ def test_the_compiled_pitch_sample_is_the_one_numpys_indexing_takes(size: int, s
     count, sample = check_numba._sample(values.reshape(-1, 8) if size % 8 == 0 else values.reshape(1, -1), samples)
     assert count == len(finite)
     np.testing.assert_array_equal(sample, expected)
+
+
+def _orders(n: int) -> dict[str, np.ndarray]:
+    """Value orders a selection meets: a pixel line's chords (rising to the centre and falling again), sorted, ties,
+    one value, and noise."""
+    rng = np.random.default_rng(n)
+    u = np.linspace(-1, 1, n)
+    return {
+        "organ pipe": 1 / (1 + u * u) ** 2,
+        "sorted": np.sort(rng.random(n)),
+        "reversed": np.sort(rng.random(n))[::-1].copy(),
+        "ties": np.round(rng.random(n) * 3),
+        "constant": np.ones(n),
+        "random": rng.random(n),
+    }
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 640, 200_000])
+def test_the_compiled_selection_finds_each_rank_a_sort_puts_there(n: int) -> None:
+    """The grid check's medians and quantiles select ranks in place (`_select`): each is the value a sort puts at that
+    rank, on every order of values, and the quantiles are np.quantile's."""
+    for name, values in _orders(n).items():
+        ordered = np.sort(values)
+        for k in sorted({0, (n - 1) // 2, n - 1, n // 7}):
+            buffer = values.copy()
+            assert check_numba._select(buffer, 0, n, k) == ordered[k], (name, k)
+            assert (buffer[:k] <= ordered[k]).all() and (buffer[k + 1 :] >= ordered[k]).all(), (name, k)
+        got = check_numba._quantiles(values.copy(), 0.05, 0.95)
+        np.testing.assert_array_equal(got, np.quantile(values, [0.05, 0.95]), err_msg=name)

@@ -35,7 +35,7 @@ def scan_line_breaks(
     known = angles[np.isfinite(angles)]
     if len(known) < least:
         return None
-    median = float(np.partition(known, (len(known) - 1) // 2)[(len(known) - 1) // 2])  # torch.median's lower middle
+    median = float(_select(known, 0, len(known), (len(known) - 1) // 2))  # torch.median's lower middle
     return _breaks(picked, angles, median, spread, turn)
 
 
@@ -63,11 +63,12 @@ def chord_stats(
 
 
 def _quantiles(values: np.ndarray, *qs: float) -> list[float]:
-    """np.quantile's linear quantiles (the same interpolation), from a partition instead of a sort."""
+    """np.quantile's linear quantiles (the same interpolation), from a partition instead of a sort; `values` is
+    reordered in place."""
     n = len(values)
     at = [q * (n - 1) for q in qs]
     ranks = sorted({min(math.floor(a) + d, n - 1) for a in at for d in (0, 1)})
-    part = np.partition(values, ranks)
+    part = _partition_at(values, np.array(ranks, dtype=np.int64))
     out = []
     for a in at:
         lo = math.floor(a)
@@ -181,7 +182,50 @@ def _lower_medians(chord2, axis, out, lo, hi):
             if np.isfinite(v):
                 buffer[n] = v
                 n += 1
-        out[i] = np.nan if n == 0 else np.partition(buffer[:n], (n - 1) // 2)[(n - 1) // 2]
+        out[i] = np.nan if n == 0 else _select(buffer, 0, n, (n - 1) // 2)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _partition_at(values, ranks):
+    """`values` reordered in place so that each of the ascending `ranks` holds the value a sort would put there, as
+    np.partition(values, ranks) orders a copy; returns `values`."""
+    lo = 0
+    for k in ranks:
+        _select(values, lo, len(values), k)
+        lo = k + 1
+    return values
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _select(values, lo, hi, k):
+    """The value of rank k (lo <= k < hi) of values[lo:hi], which is reordered in place so that none before k is
+    larger and none after it smaller: a quickselect on a copy-free buffer. Its pivots are drawn by a xorshift
+    generator, since a pixel line's chords rise to the image centre and fall again, an order on which the usual
+    median-of-three pivots (and np.partition in numba) take several times longer. NaN-free input."""
+    state = np.uint64(hi - lo) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(1)
+    hi -= 1
+    while hi > lo:
+        state ^= state << np.uint64(13)
+        state ^= state >> np.uint64(7)
+        state ^= state << np.uint64(17)
+        pivot = values[lo + np.int64(state % np.uint64(hi - lo + 1))]
+        i, j = lo, hi
+        while i <= j:
+            while values[i] < pivot:
+                i += 1
+            while values[j] > pivot:
+                j -= 1
+            if i <= j:
+                values[i], values[j] = values[j], values[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    return values[k]
 
 
 def warm_grid() -> np.ndarray:
