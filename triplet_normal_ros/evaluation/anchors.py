@@ -42,6 +42,11 @@ FALS_WINDOW = 7
 OPEN3D_MAX_NN = 30
 #: Timed runs per anchor and cloud after one warm-up call; the median is reported.
 REPEATS = 3
+#: ... and where one run takes under FAST_SECONDS: a 50 ms estimate is as easily moved by other work on the machine
+#: as a second-long one, and the window paths and PCL's integral images are compared at that scale, so their median
+#: is taken over more runs. PCL's tool runs every estimator this many times (its slowest, KNN30, about half a second).
+FAST_REPEATS = 11
+FAST_SECONDS = 0.25
 
 Estimate = Callable[[np.ndarray, "tuple[int, int] | None", float], np.ndarray]
 #: An anchor that times itself: (normals, seconds of each of its timed runs after its own warm-up).
@@ -234,7 +239,7 @@ def pcl_anchors(include_roots: Sequence[Path] | None = None) -> list[Anchor]:
     from . import pcl
 
     roots = pcl.INCLUDE_ROOTS if include_roots is None else include_roots
-    found = pcl.pcl_estimators(REPEATS, roots)
+    found = pcl.pcl_estimators(FAST_REPEATS, roots)
     return [Anchor(*estimator, times_itself=True) for estimator in found]
 
 
@@ -322,10 +327,15 @@ def measure(
 
 
 def _wall_times(anchor: Anchor, points: np.ndarray, shape, radius: float, repeats: int) -> list[float]:
-    runs = []
-    for _ in range(repeats):
+    return timed_runs(lambda: anchor.estimate(points, shape, radius), repeats)
+
+
+def timed_runs(call: Callable[[], object], repeats: int = REPEATS) -> list[float]:
+    """Seconds of `repeats` calls, or FAST_REPEATS where the first takes under FAST_SECONDS."""
+    runs: list[float] = []
+    while len(runs) < (FAST_REPEATS if runs and runs[0] < FAST_SECONDS else repeats):
         start = time.perf_counter()
-        anchor.estimate(points, shape, radius)
+        call()
         runs.append(time.perf_counter() - start)
     return runs
 

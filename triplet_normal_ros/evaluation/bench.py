@@ -162,19 +162,18 @@ def bench_one(
     return row
 
 
+#: How many timed runs a median is of, in words (`anchors.timed_runs`).
+_RUNS = f"{outside.REPEATS} ({outside.FAST_REPEATS} where one takes under {outside.FAST_SECONDS} s)"
+
+
 def _whole_cloud_seconds(estimator, points: np.ndarray, shape) -> float:
-    """The median of `anchors.REPEATS` estimates of every point, the anchors' statistic, where no query subset
+    """The median of `anchors.timed_runs` estimates of every point, the anchors' statistic, where no query subset
     extrapolates to the whole cloud. Window `pca` answers every pixel whatever the query. Hybrid on a range image
     runs its network on a lattice of the gated pixels, whose passes a sparse query pays for each pixel it asks for (up
     to five) and a whole frame shares. Pool PCA over a whole cloud searches in the KD-tree's leaf order, each query's
     bound seeded by the one before (`kdtree_numba`), which scattered queries cannot use; it is cheap enough to time
     whole, as the anchors are."""
-    runs = []
-    for _ in range(outside.REPEATS):
-        start = time.perf_counter()
-        estimator.estimate(points, shape=shape)
-        runs.append(time.perf_counter() - start)
-    return float(np.median(runs))
+    return float(np.median(outside.timed_runs(lambda: estimator.estimate(points, shape=shape))))
 
 
 def neighbour_rows(points: np.ndarray, shape, device: str, queries: int) -> list[tuple[str, int, float, float]]:
@@ -321,10 +320,10 @@ def anchors_markdown(rows: list[Row], anchor_rows: list[outside.AnchorRow], foun
     missing = f" Not importable in this run: {', '.join(s.name for s in skipped)}." if skipped else ""
     lines = [
         f"Outside anchors on the same clouds (marked *; {versions}): {about}. *s per cloud* is the table above's for "
-        f"the package (for `pca` and the window paths, the median of {outside.REPEATS} whole-cloud calls) and the "
-        f"median of {outside.REPEATS} whole-cloud calls after a warm-up for an anchor (with its "
-        "own threads); MSAE (rad²) is at the same timed query points against the exact normals, a missing normal "
-        "counting as 90°." + missing,
+        f"the package (for `pca` and the window paths, the median of {_RUNS} whole-cloud calls) and the "
+        f"median of {_RUNS} whole-cloud calls after a warm-up for an anchor (with its own threads; PCL's tool "
+        f"runs each of its estimators {outside.FAST_REPEATS} times); MSAE (rad²) is at the same timed query points "
+        "against the exact normals, a missing normal counting as 90°." + missing,
         "",
         *outside.comparison_lines(entries, f"pca, k = {PCA_SMALL_K}"),
     ]
@@ -357,7 +356,7 @@ def markdown(rows, searches, gflops, net, conversions, command: str, memory=()) 
         "includes building the search once per cloud; *s per cloud* = the per-cloud cost (measured by a 16-query run: "
         "building the search, moving the cloud) + the per-query cost × every valid point; *× PCA-30* is that time over "
         f"PCA at k = 30 on the same cloud in this run. For `pca` and for the window paths *s per cloud* is the median "
-        f"of {outside.REPEATS} estimates of the whole cloud instead, as for the anchors: the window `pca` answers "
+        f"of {_RUNS} estimates of the whole cloud instead, as for the anchors: the window `pca` answers "
         "every pixel at once; "
         "hybrid's network runs on a lattice of the gated pixels, whose passes a sparse query pays for each pixel it "
         "asks for (up to five) and a whole frame shares; and pool PCA searches a whole cloud in the KD-tree's leaf "
