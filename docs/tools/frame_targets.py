@@ -61,7 +61,7 @@ def anchor_row(anchor: anchors.Anchor, frames: list) -> tuple[float, float]:
     for frame in frames:
         points, exact = frame.points.reshape(-1, 3).astype(np.float64), frame.normals.reshape(-1, 3)
         valid = np.flatnonzero(np.isfinite(points).all(axis=1))
-        row = anchors.measure(anchor, "depth", points, frame.points.shape[:2], DEPTH_RADIUS, exact, valid, repeats=1)
+        row = anchors.measure(anchor, "depth", points, frame.points.shape[:2], DEPTH_RADIUS, exact, valid, 1, 1)
         seconds.append(row.seconds)
         errors.append(row.msae)
     return statistics.mean(seconds), statistics.mean(errors)

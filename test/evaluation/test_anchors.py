@@ -128,6 +128,8 @@ def test_an_anchor_is_timed_on_the_whole_cloud_and_scored_at_the_query_points() 
     row = anchors.measure(anchors.Anchor("pca k30", pca_anchor), "torus", points, None, radius, truth, query, 2)
     assert (row.cloud, row.name, row.queries) == ("torus", "pca k30", 400)
     assert len(row.runs) == (anchors.FAST_REPEATS if row.runs[0] < anchors.FAST_SECONDS else 2)
+    once = anchors.measure(anchors.Anchor("pca k30", pca_anchor), "torus", points, None, radius, truth, query, 1, 1)
+    assert len(once.runs) == 1  # a caller that asks for one run, fast or not, gets one
     assert all(t > 0 for t in row.runs) and min(row.runs) <= row.seconds <= max(row.runs)
     expected = msae(pca_anchor(points, None, radius)[query], truth[query])
     assert row.msae == pytest.approx(expected, rel=1e-12) and 0 < row.msae < 0.1

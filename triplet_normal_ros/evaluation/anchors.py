@@ -42,10 +42,11 @@ FALS_WINDOW = 7
 OPEN3D_MAX_NN = 30
 #: Timed runs per anchor and cloud after one warm-up call; the median is reported.
 REPEATS = 3
-#: ... and where one run takes under FAST_SECONDS: a 50 ms estimate is as easily moved by other work on the machine
-#: as a second-long one, and the window paths and PCL's integral images are compared at that scale, so their median
-#: is taken over more runs. PCL's tool runs every estimator this many times (its slowest, KNN30, about half a second).
+#: Timed runs where the first takes under FAST_SECONDS: other work on the machine moves a 50 ms estimate as much as a
+#: second-long one, and the window paths and PCL's integral images are compared at that scale, so their median is
+#: taken over more runs. PCL's tool runs every estimator this many times (its slowest, KNN30, about half a second).
 FAST_REPEATS = 11
+#: The first timed run's seconds under which a call counts as fast (FAST_REPEATS).
 FAST_SECONDS = 0.25
 
 Estimate = Callable[[np.ndarray, "tuple[int, int] | None", float], np.ndarray]
@@ -300,10 +301,12 @@ def measure(
     truth: np.ndarray,
     query: np.ndarray,
     repeats: int = REPEATS,
+    fast: int = FAST_REPEATS,
 ) -> AnchorRow:
-    """Time `anchor` on the whole cloud (one warm-up call, then the median of `repeats`; an anchor that times itself
-    is called once and its own runs are taken) and score its normals at `query` against `truth` (N, 3) with
-    `metrics.msae`, where a missing normal counts as 90°."""
+    """Time `anchor` on the whole cloud (one warm-up call, then the median of `repeats` runs, or of `fast` where the
+    first takes under FAST_SECONDS: `timed_runs`; an anchor that times itself is called once and its own runs are
+    taken) and score its normals at `query` against `truth` (N, 3) with `metrics.msae`, where a missing normal counts
+    as 90°."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     result = anchor.estimate(points, shape, radius)
     normals, runs = result if anchor.times_itself else (result, None)
@@ -311,7 +314,7 @@ def measure(
     if normals.shape != points.shape:
         raise ValueError(f"anchor {anchor.name} returned normals of shape {normals.shape} for {points.shape} points")
     if runs is None:
-        runs = _wall_times(anchor, points, shape, radius, repeats)
+        runs = timed_runs(lambda: anchor.estimate(points, shape, radius), repeats, fast)
     if not runs:
         raise ValueError(f"anchor {anchor.name} reported no timed run")
     picked = normals[query]
@@ -326,14 +329,10 @@ def measure(
     )
 
 
-def _wall_times(anchor: Anchor, points: np.ndarray, shape, radius: float, repeats: int) -> list[float]:
-    return timed_runs(lambda: anchor.estimate(points, shape, radius), repeats)
-
-
-def timed_runs(call: Callable[[], object], repeats: int = REPEATS) -> list[float]:
-    """Seconds of `repeats` calls, or FAST_REPEATS where the first takes under FAST_SECONDS."""
+def timed_runs(call: Callable[[], object], repeats: int = REPEATS, fast: int = FAST_REPEATS) -> list[float]:
+    """Seconds of `repeats` calls, or of `fast` where the first takes under FAST_SECONDS."""
     runs: list[float] = []
-    while len(runs) < (FAST_REPEATS if runs and runs[0] < FAST_SECONDS else repeats):
+    while len(runs) < (fast if runs and runs[0] < FAST_SECONDS else repeats):
         start = time.perf_counter()
         call()
         runs.append(time.perf_counter() - start)

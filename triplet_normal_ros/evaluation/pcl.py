@@ -14,7 +14,7 @@ package, its tests or CI.
   radius or a k, not both, so unlike Open3D's KNN30 no ball caps it.
 
 A process's start and its file IO are no part of an estimator's cost, so the tool times each estimator itself, one
-warm-up and `repeats` runs (`anchors.REPEATS`) around the computation alone, and the anchors report those seconds
+warm-up and `repeats` runs (`anchors.FAST_REPEATS`) around the computation alone, and the anchors report those seconds
 (`Anchor.times_itself`). One run of the tool gives every estimator on a cloud, so the anchors of one cloud share it.
 """
 

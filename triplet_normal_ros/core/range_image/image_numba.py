@@ -642,8 +642,8 @@ def _box2(table, top, bottom, left, right):
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _crossed(col_walls, row_walls, top, bottom, left, right):
     """Whether a wall lies strictly inside the box (`image._WallTable.crossed`): one between two of its columns, else
-    one between two of its rows. The box lies inside the image (`_box_at` clips it), so the walls between its columns
-    are columns left..right - 1 of the column table, and its rows' likewise."""
+    one between two of its rows. The box lies inside the image (the caller clips it: `_box_at`, `_window`), so the
+    walls between its columns are columns left..right - 1 of the column table, and its rows' likewise."""
     if right > left and _box2(col_walls, top, bottom, left, right - 1) > 0.5:
         return True
     return bottom > top and _box2(row_walls, top, bottom - 1, left, right) > 0.5
@@ -677,8 +677,8 @@ def _largest_clear(r, c, half_row, half_col, up, down, left, right, col_walls, r
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _window(r, c, half_row, half_col, counts, col_walls, row_walls, height, width):
     """The pixel's window: the centred box where no wall crosses it, as on most pixels (about 95 % of a depth
-    frame's), else `_cut_window`. The test is written into the caller's loop: as a call, `_window` cost the one-pass
-    kernel about a seventh of its time."""
+    frame's), else `_cut_window`. Inlined, so that the common case costs the caller's loop no call per pixel (a call
+    costs the one-pass kernel about a seventh of its time)."""
     top, bottom = max(r - half_row, 0), min(r + half_row, height - 1)
     left, right = max(c - half_col, 0), min(c + half_col, width - 1)
     if _crossed(col_walls, row_walls, top, bottom, left, right):
