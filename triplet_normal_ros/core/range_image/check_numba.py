@@ -33,7 +33,7 @@ def scan_line_breaks(
     angles = np.full((picked.shape[0], max(picked.shape[1] - 1, 0)), np.nan)
     _line_angles(picked, angles)
     known = angles[np.isfinite(angles)]
-    if len(known) < least:
+    if len(known) < max(least, 1):
         return None
     median = float(_select(known, 0, len(known), (len(known) - 1) // 2))  # torch.median's lower middle
     return _breaks(picked, angles, median, spread, turn)
