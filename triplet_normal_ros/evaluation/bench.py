@@ -163,7 +163,7 @@ def bench_one(
 
 
 #: How many timed runs a median is of, in words (`anchors.timed_runs`).
-_RUNS = f"{outside.REPEATS} ({outside.FAST_REPEATS} where one takes under {outside.FAST_SECONDS} s)"
+_RUNS = f"{outside.REPEATS} ({outside.FAST_REPEATS} where the first takes under {outside.FAST_SECONDS} s)"
 
 
 def _whole_cloud_seconds(estimator, points: np.ndarray, shape) -> float:
