@@ -20,6 +20,7 @@ from .config import defaults
 from .config.settings import Settings
 from .estimator import NormalEstimator
 from .orientation import orient_towards_viewpoint
+from .rows import finite_rows, nonzero_rows
 
 
 @dataclass(frozen=True)
@@ -63,7 +64,7 @@ def estimate_cloud(
         points = np.where(valid[:, None], points, np.nan) if not valid.all() else points
     if zeros_are_no_returns:
         points = without_no_returns(points)
-    if len(points) == 0 or not np.isfinite(points).all(axis=1).any():
+    if len(points) == 0 or not finite_rows(points).any():
         return _unknown(len(points))
     normals, curvature = estimator.estimate(points, cancel=cancel, shape=shape, settings=settings)
     if viewpoint is not None:
@@ -76,7 +77,7 @@ def without_no_returns(points: np.ndarray) -> np.ndarray:
     points = np.asarray(points)
     if points.ndim != 2 or len(points) == 0:
         return points
-    zero = ~points.any(axis=1)  # NaN counts as non-zero: it stays a hole either way
+    zero = ~nonzero_rows(points)  # NaN counts as non-zero: it stays a hole either way
     return np.where(zero[:, None], np.nan, points) if zero.any() else points
 
 

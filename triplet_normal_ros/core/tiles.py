@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .rows import finite_rows
+
 
 @dataclass(frozen=True)
 class Tile:
@@ -35,7 +37,7 @@ def plan_tiles(points: np.ndarray, max_points: int, halo_of: Callable[[np.ndarra
     if max_points < 1:
         raise ValueError(f"max_points must be >= 1, got {max_points}")
     points = np.asarray(points)
-    finite = np.flatnonzero(np.isfinite(points).all(axis=1))
+    finite = np.flatnonzero(finite_rows(points))
     if len(finite) == 0:
         return []
     candidates = points[finite]  # one copy for every tile's halo search

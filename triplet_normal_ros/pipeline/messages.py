@@ -14,10 +14,9 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from ..core.cloud import estimate_cloud
 from ..core.estimator import NormalEstimator
+from ..core.rows import finite_rows
 from ..io.pointcloud2 import empty_with_normals, read_xyz, with_normals
 from .message_settings import MessageSettings
 
@@ -48,5 +47,5 @@ def answer_message(
         estimator, points, shape=(msg.height, msg.width), viewpoint=settings.facing, cancel=cancel,
         zeros_are_no_returns=settings.zeros_are_no_returns, settings=settings.estimator,
     )  # fmt: skip
-    finite = int(np.isfinite(points).all(axis=1).sum())
+    finite = int(finite_rows(points).sum())
     return Answer(with_normals(msg, result.normals, result.curvature), len(points), finite, result.known)

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..core.config import defaults
 from ..core.config.settings import is_real
+from ..core.rows import finite_rows
 from ..io.normal_map import normals_to_rgb
 
 #: The most segments one cloud's marker holds. Each segment costs the node two points and a colour as Python message
@@ -60,7 +61,7 @@ class Segments:
 
 def has_normal(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """(n,) bool: the points that got a normal (both rows finite; a hole's normal is NaN anyway)."""
-    return np.isfinite(points).all(axis=1) & np.isfinite(normals).all(axis=1)
+    return finite_rows(points) & finite_rows(normals)
 
 
 def pick(valid: np.ndarray, stride: int, most: int = MAX_SEGMENTS) -> tuple[np.ndarray, int]:

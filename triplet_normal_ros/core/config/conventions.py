@@ -6,6 +6,8 @@ so changing a value here can never silently mismatch a shipped model.
 
 import numpy as np
 
+from ..rows import finite_rows
+
 #: The methods `NormalEstimator` offers: the network everywhere (weighed against the ball's plane), PCA, or PCA with
 #: the network where it is not flat.
 METHODS = ("learned", "pca", "hybrid")
@@ -52,7 +54,7 @@ def checkpoint_conventions() -> dict[str, float | int]:
 def bbox_diagonal(points: np.ndarray) -> float:
     """Length of the axis-aligned bounding-box diagonal of the finite points (0 for fewer than two)."""
     points = np.asarray(points)
-    finite = points[np.isfinite(points).all(axis=1)]
+    finite = points[finite_rows(points)]
     if len(finite) < 2:
         return 0.0
     return float(np.linalg.norm(finite.max(axis=0) - finite.min(axis=0)))

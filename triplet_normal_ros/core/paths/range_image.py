@@ -19,6 +19,7 @@ from ..range_image.image_numba import CompiledImage
 from ..range_image.lattice import agreed, plan_lattice
 from ..range_image.sides import snap_to_sides
 from ..range_image.survey import PART_SPAN, Structure, opens, survey_and_cue, survey_normal, survey_on_slope
+from ..rows import finite_rows
 from ..search.pools import PoolSearch, ScanLines, open_search
 from .call import CHUNK, Call, Cloud, finish
 from .pools import hybrid_kernel, network_kernel, over_pools, pca_kernel
@@ -166,12 +167,12 @@ def window_hybrid(
         answer = lattice_network(call, search, cloud, gated.cpu().numpy(), image.width, pixels, lines)
         with call.timed("sides"):
             answer = snap_to_sides(image, fit, cloud, pixels, answer)
-        answered = np.isfinite(answer).all(axis=1)
+        answered = finite_rows(answer)
         normals[network_rows[answered]] = answer[answered]
         if progress is not None:
             progress(len(network_rows))
     for out, answer, ball_curvature in over_pools(call, search, cloud, query, pooled, hybrid_kernel, CHUNK, lines):
-        answered = np.isfinite(answer).all(axis=1)
+        answered = finite_rows(answer)
         normals[out[answered]] = answer[answered]
         curvature[out[answered]] = ball_curvature[answered]  # a thin window's curvature is a sliver's
         if progress is not None:
@@ -217,7 +218,7 @@ def lattice_network(
         chosen = chosen.numpy().astype(np.float32)
         own = np.isin(pixels, plan.run)
         chosen[own] = answers[np.searchsorted(plan.run, pixels[own])]
-    alone = np.flatnonzero(~own & ~np.isfinite(chosen).all(axis=1))
+    alone = np.flatnonzero(~own & ~finite_rows(chosen))
     if len(alone):
         chosen[alone] = _network(call, search, cloud, pixels[alone], lines)
     return chosen

@@ -6,6 +6,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from ..pca.pools_numba import tree_normals
+from ..rows import finite_rows
 from .kdtree_numba import KDTree
 
 #: Queries are answered in chunks so a (chunk, max_nn) index block stays in the tens of MB.
@@ -20,7 +21,7 @@ class NeighbourIndex:
         if points.ndim != 2 or points.shape[1] != 3:
             raise ValueError(f"points must have shape (N, 3), got {points.shape}")
         self.points = points
-        self.finite = np.isfinite(points).all(axis=1)
+        self.finite = finite_rows(points)
         original = np.flatnonzero(self.finite)
         # The tree answers with the cloud's rows; a cloud row's place among the finite points is its row in the tree.
         self._tree = KDTree(np.asarray(points[self.finite], dtype=np.float64), ids=original)
