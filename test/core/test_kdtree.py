@@ -118,9 +118,12 @@ def test_ids_name_the_answers() -> None:
 
 
 @pytest.mark.parametrize("others", [False, True])
-def test_leaf_order_answers_in_the_callers_rows(others: bool) -> None:
+@pytest.mark.parametrize("repeats", [False, True])
+def test_leaf_order_answers_in_the_callers_rows(others: bool, repeats: bool) -> None:
     points = _clouds()["clustered"]
     rows = np.random.default_rng(5).permutation(len(points))[:900]
+    if repeats:  # a point asked for more than once: the leaf order's scatter cannot hold both
+        rows[::7] = rows[3]
     centres, named = points[rows].copy(), rows.copy()
     if others:  # centres that are not the tree's points, read from the centres given
         named[::9] = -1

@@ -13,6 +13,7 @@ import torch
 from ..config.plan import Plan
 from ..learned.patches import Patches, build_patches, to_world
 from ..learned.trust import Plane, settle
+from ..pca import pools_numba
 from ..pca.eigen import EIGEN_GAP
 from ..pca.frames import QuadricGain, quadric_gain, spans_plane, surface_variation
 from ..pca.pools import pool_normals, pool_pca
@@ -113,9 +114,7 @@ def tree_pca(
     with call.timed("neighbours"):
         normal, eigvals, valid = search.index.pool_normals(rows, radius, call.pool_size(), EIGEN_GAP, width)
     with call.timed("pca"):
-        eigvals = torch.from_numpy(eigvals)
-        valid = torch.from_numpy(valid) & spans_plane(eigvals)
-        return finish(torch.from_numpy(normal), surface_variation(eigvals), valid)
+        return pools_numba.answers(normal, eigvals, valid)
 
 
 @torch.inference_mode()

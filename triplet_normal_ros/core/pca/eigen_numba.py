@@ -88,3 +88,16 @@ def moments_pca(sums, gap, cov, eigvals, normal):
             eigvals[a] = max(values[a], 0.0)
             normal[a] = vectors[a, 0]
     return valid
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def write_answer(x, y, z, eigvals, answered, normals, curvature, i):
+    """Row i of a compiled path's output: the unit normal (x, y, z) and PCL's curvature λ0 / (λ0 + λ1 + λ2) from
+    the ascending `eigvals`, NaN unless `answered` (`paths.call.finish`'s rule, one row at a time)."""
+    if not answered:
+        normals[i, 0] = normals[i, 1] = normals[i, 2] = curvature[i] = np.nan
+        return
+    length = max(math.sqrt(x * x + y * y + z * z), 1e-12)
+    normals[i, 0], normals[i, 1], normals[i, 2] = x / length, y / length, z / length
+    total = eigvals[0] + eigvals[1] + eigvals[2]
+    curvature[i] = eigvals[0] / max(total, _TINY) if total > 0 else 0.0

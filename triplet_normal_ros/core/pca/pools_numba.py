@@ -16,7 +16,8 @@ from numba import njit
 
 from ..bands import bands
 from ..search.kdtree_numba import KDTree, _nearest_one, scratch_for
-from .eigen_numba import add_moments, moments_pca
+from .eigen_numba import add_moments, moments_pca, write_answer
+from .frames import COLLINEAR_RATIO
 
 _MASK32 = 0xFFFFFFFF
 
@@ -100,6 +101,23 @@ def _tree_pca(
             valid[q] = not single(ids, scratch.best_pos, count, width)
 
 
+def answers(normal: np.ndarray, eigvals: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`paths.call.finish` of `pca`'s answers (`tree_normals`' or a range image's `pool_normals`'): float32 unit
+    normals (M, 3) and curvature (M,), NaN where not valid or where the pool spans no plane (`frames.spans_plane`).
+    One compiled loop: as torch passes over a chunk of 65k answers the same steps took about three times as long."""
+    m = len(valid)
+    normals, curvature = np.empty((m, 3), dtype=np.float32), np.empty(m, dtype=np.float32)
+    _answers(normal, eigvals, valid, normals, curvature)
+    return normals, curvature
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _answers(normal, eigvals, valid, normals, curvature):
+    for i in range(len(valid)):
+        spans = eigvals[i, 1] > COLLINEAR_RATIO * eigvals[i, 2]
+        write_answer(normal[i, 0], normal[i, 1], normal[i, 2], eigvals[i], valid[i] and spans, normals, curvature, i)
+
+
 @njit(cache=True, nogil=True, inline="always")
 def single(ids, places, count, width):
     """`search.pools.ScanLines.single` of one pool, its compiled twin: whether the pool ids[places[:count]] lies
@@ -125,4 +143,4 @@ def warm() -> None:
     cloud = np.stack((u, v, np.ones_like(u) + 0.1 * u * v), axis=-1).reshape(-1, 3)
     pool = np.arange(16, dtype=np.int64).reshape(2, 8)
     pool_normals(cloud, pool, np.arange(2), 1e-3)
-    tree_normals(KDTree(cloud), cloud[:2], np.arange(2), 3.0, 8, 1e-3, width=4)
+    answers(*tree_normals(KDTree(cloud), cloud[:2], np.arange(2), 3.0, 8, 1e-3, width=4))

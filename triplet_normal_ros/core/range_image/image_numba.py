@@ -24,7 +24,7 @@ from numba import njit
 
 from ..bands import bands
 from ..config.conventions import MIN_NEIGHBOURS
-from ..pca.eigen_numba import add_moments, moments_pca, smallest_eigenvector
+from ..pca.eigen_numba import add_moments, moments_pca, smallest_eigenvector, write_answer
 from ..pca.frames import COLLINEAR_RATIO
 from ..pca.pools_numba import single
 from .check_numba import warm_grid
@@ -380,20 +380,7 @@ def _finish(normal, eigvals, valid, finite, mean, cov, normals, curvature, lo, h
         nx, ny, nz = ray_noise_normal(
             cov[i], mean[i, 0], mean[i, 1], mean[i, 2], eigvals[i, 2], normal[i, 0], normal[i, 1], normal[i, 2]
         )
-        _finish_one(nx, ny, nz, eigvals[i], valid[i] and finite[i], normals, curvature, i)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _finish_one(x, y, z, eigvals, answered, normals, curvature, i):
-    """Row i of the output: the unit normal (x, y, z) and PCL's curvature λ0 / (λ0 + λ1 + λ2), NaN unless
-    `answered`."""
-    if not answered:
-        normals[i, 0] = normals[i, 1] = normals[i, 2] = curvature[i] = np.nan
-        return
-    length = max(math.sqrt(x * x + y * y + z * z), 1e-12)
-    normals[i, 0], normals[i, 1], normals[i, 2] = x / length, y / length, z / length
-    total = eigvals[0] + eigvals[1] + eigvals[2]
-    curvature[i] = eigvals[0] / max(total, _TINY) if total > 0 else 0.0
+        write_answer(nx, ny, nz, eigvals[i], valid[i] and finite[i], normals, curvature, i)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -435,7 +422,7 @@ def _normals(
         for c in range(width):
             i = r * width + c
             if np.isnan(ranges[r, c]):
-                _finish_one(0.0, 0.0, 0.0, eigvals, False, normals, curvature, i)
+                write_answer(0.0, 0.0, 0.0, eigvals, False, normals, curvature, i)
                 continue
             half_row, half_col = _half_widths(ranges, reach, pitch_row, pitch_col, r, c, pixels)
             block_row, block_col = r // SLOPE_STRIDE, c // SLOPE_STRIDE
@@ -454,7 +441,7 @@ def _normals(
                 valid, nx, ny, nz = _unfitted(
                     table, counts, offset, col_walls, row_walls, r, c, half_row, half_col, eigvals, normal
                 )
-            _finish_one(nx, ny, nz, eigvals, valid, normals, curvature, i)
+            write_answer(nx, ny, nz, eigvals, valid, normals, curvature, i)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
