@@ -2,7 +2,8 @@
 
 Its contract: the nearest k points strictly inside the ball, nearest first, equal distances by id, -1 padded, none for
 a non-finite centre; the same answer in the tree's leaf order (`rows`) as in the caller's; and `tree_normals`, the
-search and the pool PCA in one loop, equal to `pool_normals` over the same pools.
+search and the pool PCA in one loop, equal to `pool_normals` over the same pools, and its answers finished as the
+torch path finishes them.
 """
 
 import numpy as np
@@ -10,8 +11,10 @@ import pytest
 import torch
 from scipy.spatial import cKDTree
 
+from triplet_normal_ros.core.paths.call import finish
 from triplet_normal_ros.core.pca.eigen import EIGEN_GAP
-from triplet_normal_ros.core.pca.pools_numba import pool_normals, tree_normals
+from triplet_normal_ros.core.pca.frames import COLLINEAR_RATIO, spans_plane, surface_variation
+from triplet_normal_ros.core.pca.pools_numba import answers, pool_normals, tree_normals
 from triplet_normal_ros.core.search.kdtree_numba import LEAF_SIZE, KDTree, _nearest_one, scratch_for
 from triplet_normal_ros.core.search.neighbours import NeighbourIndex
 from triplet_normal_ros.core.search.pools import ScanLines
@@ -202,3 +205,31 @@ def test_tree_normals_with_the_image_width_refuse_the_pools_scan_lines_refuses(k
     single = ScanLines((height, width), torch.device("cpu")).single(pools, torch.from_numpy(rows)).numpy()
     assert (single & plain[2]).any() and (~single & plain[2]).any()  # both kinds of valid pool occur
     np.testing.assert_array_equal(lined[2], plain[2] & ~single)
+
+
+def test_compiled_answers_finish_as_the_torch_path_does() -> None:
+    """`pools_numba.answers` against `finish(normal, surface_variation(eigvals), valid & spans_plane(eigvals))`, bit
+    for bit: normals of any length, pools on the collinear threshold, zero and NaN eigenvalues, NaN and infinite
+    normal components, invalid rows."""
+    rng = np.random.default_rng(4)
+    m = 4000
+    normal = rng.normal(size=(m, 3)) * 10.0 ** rng.uniform(-8, 4, (m, 1))
+    eigvals = np.sort(np.abs(rng.normal(size=(m, 3))) * 10.0 ** rng.uniform(-8, 2, (m, 1)), axis=1)
+    eigvals[0::7, 1] = COLLINEAR_RATIO * eigvals[0::7, 2]  # on the threshold: collinear
+    eigvals[1::7, 1] = np.nextafter(COLLINEAR_RATIO * eigvals[1::7, 2], np.inf)  # just past it
+    eigvals[1::7, 0] = np.minimum(eigvals[1::7, 0], eigvals[1::7, 1])
+    eigvals[2::7] = 0.0
+    eigvals[3::7, 0] = 0.0
+    eigvals[4::7] = np.nan
+    normal[5::7, 1] = np.nan
+    normal[6::7, 2] = np.inf
+    valid = rng.random(m) < 0.9
+    found = answers(normal, eigvals, valid)
+    torch_eigvals = torch.from_numpy(eigvals)
+    expected = finish(
+        torch.from_numpy(normal), surface_variation(torch_eigvals), torch.from_numpy(valid) & spans_plane(torch_eigvals)
+    )
+    for got, want in zip(found, expected, strict=True):
+        assert got.dtype == want.dtype and got.shape == want.shape
+        assert got.tobytes() == want.tobytes()
+    assert np.isfinite(found[1]).sum() > m // 2

@@ -93,7 +93,8 @@ def moments_pca(sums, gap, cov, eigvals, normal):
 @njit(cache=True, nogil=True, error_model="numpy")
 def write_answer(x, y, z, eigvals, answered, normals, curvature, i):
     """Row i of a compiled path's output: the unit normal (x, y, z) and PCL's curvature λ0 / (λ0 + λ1 + λ2) from
-    the ascending `eigvals`, NaN unless `answered` (`paths.call.finish`'s rule, one row at a time)."""
+    the ascending `eigvals` (`frames.surface_variation`), NaN unless `answered`: what `paths.call.finish` makes of a
+    torch path's answers, one row at a time."""
     if not answered:
         normals[i, 0] = normals[i, 1] = normals[i, 2] = curvature[i] = np.nan
         return

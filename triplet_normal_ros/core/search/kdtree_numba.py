@@ -123,15 +123,11 @@ class KDTree:
 
     def _leaf_order(self, rows: np.ndarray) -> np.ndarray:
         """The order of `rows` (the tree's own rows, -1 for none) that follows their places in leaf order, the
-        others after them as given: a stable argsort of the places. Where no row repeats (every chunk of a cloud's
-        points) it is one scatter and one gather, a third of the sort's time on a chunk of 65k rows."""
-        own = np.flatnonzero(rows >= 0)
-        slot = np.full(self.size, -1, dtype=np.int64)
-        slot[self.position[rows[own]]] = own
-        ordered = slot[slot >= 0]
-        if len(ordered) < len(own):  # a row asked for twice
-            return np.argsort(np.where(rows >= 0, self.position[rows], self.size), kind="stable")
-        return np.concatenate((ordered, np.flatnonzero(rows < 0)))
+        others after them as given: a stable argsort of the places. Each key also carries its index, so no two keys
+        tie and numpy's default sort, several times faster than its stable one on a chunk of 65k rows, gives the
+        stable order."""
+        places = np.where(rows >= 0, self.position[rows], self.size)
+        return np.argsort(places * len(rows) + np.arange(len(rows)))
 
 
 def warm() -> None:
@@ -190,7 +186,7 @@ def _split_levels(pts, order, span, box, first, stop, depth, lo, hi):
 
 @njit(cache=True, nogil=True, inline="always")
 def _bounds(pts, lo, hi, box, node):
-    """The box of pts[lo:hi] into box[node], its running bounds in locals (stored once, not on every point)."""
+    """The box of pts[lo:hi] into box[node]; the running bounds stay in locals (registers) and are stored once."""
     x0 = y0 = z0 = np.inf
     x1 = y1 = z1 = -np.inf
     for t in range(lo, hi):
