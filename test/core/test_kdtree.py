@@ -125,7 +125,7 @@ def test_ids_name_the_answers() -> None:
 def test_leaf_order_answers_in_the_callers_rows(others: bool, repeats: bool) -> None:
     points = _clouds()["clustered"]
     rows = np.random.default_rng(5).permutation(len(points))[:900]
-    if repeats:  # a point asked for more than once: the leaf order's scatter cannot hold both
+    if repeats:  # a point asked for more than once: equal places, which the leaf order keeps in the callers' order
         rows[::7] = rows[3]
     centres, named = points[rows].copy(), rows.copy()
     if others:  # centres that are not the tree's points, read from the centres given
