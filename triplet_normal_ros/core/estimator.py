@@ -22,6 +22,7 @@ from ..errors import EstimatorError
 from .config import defaults
 from .config.conventions import PCA_DEFAULT_K
 from .config.device import resolve_device
+from .config.memory import keep_freed_memory
 from .config.plan import checkpoint_for, checkpoints_for
 from .config.settings import Settings
 from .learned.checkpoint import load_checkpoint
@@ -80,6 +81,7 @@ class NormalEstimator:
             method=method, radius=radius, k=k, checkpoint=checkpoint, device=device, batch_size=batch_size,
             seed=seed, gate=gate, bend=bend, neighbours=neighbours, range_scale=range_scale,
         )  # fmt: skip
+        keep_freed_memory()
         try:
             self.device = resolve_device(settings.device)
         except ValueError as error:
