@@ -95,7 +95,7 @@ def test_estimate_bad_values(tmp_path: Path, capsys, ok_xyz: Path, args: list[st
         (["eval", "--device", "tpu"], "device must be"),
         (
             ["eval", "--sets", "depth,kinect"],
-            "--sets must name some of val, depth, fold, lidar, segment, matrix, pcpnet",
+            "--sets must name some of val, depth, fold, lidar, segment, icp, matrix, pcpnet",
         ),
         (["eval", "--sets", ","], "--sets must name some of"),
         (["ablate", "--epochs", "0"], "--epochs must be >= 1"),

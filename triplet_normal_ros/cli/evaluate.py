@@ -9,20 +9,20 @@ from ..core.config.conventions import RADIUS_FRACTION
 from ..errors import UsageError
 from . import args as checks
 
-#: eval's data sets, in the order they run: validation shapes, simulated range images, segmentation, every checkpoint
-#: on the validation shapes, PCPNet.
-SETS = ("val", "depth", "fold", "lidar", "segment", "matrix", "pcpnet")
+#: eval's data sets, in the order they run: validation shapes, simulated range images, segmentation, registration,
+#: every checkpoint on the validation shapes, PCPNet.
+SETS = ("val", "depth", "fold", "lidar", "segment", "icp", "matrix", "pcpnet")
 
 DESCRIPTION = f"""MSAE (rad²) and RMSE (degrees) of the learned estimator, PCA at the same radius
-({RADIUS_FRACTION:.0%} of the bbox diagonal) and PCA at its best radius per cloud (an oracle over 1-10%), on seven
+({RADIUS_FRACTION:.0%} of the bbox diagonal) and PCA at its best radius per cloud (an oracle over 1-10%), on eight
 sets: the validation shapes (val), simulated depth frames of rooms (depth), close-range fold frames (fold), 32-beam
-LiDAR scans (lidar), a planar segmentation of fold frames by region growing (segment), every shipped checkpoint with
-learned and hybrid against PCA on the validation shapes, regime by regime (matrix), and the PCPNet shapes with
-0 / 0.12 / 0.6 / 1.2% noise (pcpnet). The range sets (depth, fold, lidar) also score hybrid, PCA over windows and
-pools, and with the default checkpoint the lite and range checkpoints too. PCPNet does not ship with this package:
-without --sets, pcpnet is skipped, in one line, when --pcpnet-dir lacks its shapes. Prints the tables; with --out,
-also writes them into that markdown file and pictures into images/ beside it; a file git tracks (docs/RESULTS.md)
-only with --update-tracked. See docs/CLI.md."""
+LiDAR scans (lidar), a planar segmentation of fold frames by region growing (segment), point-to-plane ICP on pairs of
+fold frames and of LiDAR scans (icp), every shipped checkpoint with learned and hybrid against PCA on the validation
+shapes, regime by regime (matrix), and the PCPNet shapes with 0 / 0.12 / 0.6 / 1.2% noise (pcpnet). The range sets
+(depth, fold, lidar) also score hybrid, PCA over windows and pools, and with the default checkpoint the lite and
+range checkpoints too. PCPNet does not ship with this package: without --sets, pcpnet is skipped, in one line, when
+--pcpnet-dir lacks its shapes. Prints the tables; with --out, also writes them into that markdown file and pictures
+into images/ beside it; a file git tracks (docs/RESULTS.md) only with --update-tracked. See docs/CLI.md."""
 
 #: Where the PCPNet shapes are looked for unless --pcpnet-dir says otherwise: beside the working directory.
 DEFAULT_PCPNET_DIR = Path("../shared/data/pcpnet")

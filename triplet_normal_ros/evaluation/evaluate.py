@@ -16,7 +16,7 @@ import numpy as np
 from ..core.config.conventions import POOL_FACTOR, RADIUS_FRACTION, bbox_diagonal
 from ..errors import CloudFileError
 from ..io.cloud_files import read_normals_file, read_points
-from . import matrix_eval, segment_eval
+from . import icp_eval, matrix_eval, segment_eval
 from .metrics import QUERY_SEED, angles_rad, invalid_count, msae, query_indices, ratio_interval, rmse_deg
 from .report import update_section
 
@@ -186,7 +186,7 @@ def run(
     out: Path | None,
     quick: bool,
     command: str,
-    sets: tuple[str, ...] = ("val", "depth", "fold", "lidar", "segment", "matrix", "pcpnet"),
+    sets: tuple[str, ...] = ("val", "depth", "fold", "lidar", "segment", "icp", "matrix", "pcpnet"),
 ) -> None:
     """Each of `sets` (all by default): tables to stdout and, with `out`, into that markdown file (plus the fandisk
     heat map with pcpnet); blocks of sets not run are left as they are."""
@@ -221,6 +221,8 @@ def run(
 
     if "segment" in sets:
         _segment_set(device, quick, header, out)
+    if "icp" in sets:
+        _icp_set(device, quick, header, out)
     if "matrix" in sets:
         clouds, label = validation_clouds(quick), command + (" (--quick subset: not a result)" if quick else "")
         markdown = matrix_eval.run_matrix(device, clouds, label)
@@ -251,6 +253,20 @@ def _segment_set(device: str, quick: bool, header: str, out: Path | None) -> Non
     print(markdown)
     if out is not None:
         update_section(out, "eval-segment", markdown)
+
+
+def _icp_set(device: str, quick: bool, header: str, out: Path | None) -> None:
+    """The registration set: its tables to stdout and, with `out`, into the eval-icp block."""
+    start = time.perf_counter()
+    tables = {
+        kind: icp_eval.evaluate_icp(kind, icp_eval.icp_estimators(spec, device), quick)
+        for kind, spec in icp_eval.SETS.items()
+    }
+    markdown = icp_eval.icp_markdown(tables, quick, header.split("\n")[0])
+    markdown += f"\n\nWall time {(time.perf_counter() - start) / 60:.1f} min."
+    print(markdown)
+    if out is not None:
+        update_section(out, "eval-icp", markdown)
 
 
 def pcpnet_shapes_present(directory: Path) -> None:

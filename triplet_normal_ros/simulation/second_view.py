@@ -1,0 +1,102 @@
+"""A second frame of a simulated scene, seen from a sensor moved by a known motion: the frame pairs that registration
+is scored on (`evaluation/icp_eval.py`).
+
+The motion is what a robot makes between two frames: a depth camera carried at walking pace (5 cm and 2° at a
+random axis), a LiDAR on a vehicle at 3 m/s and 10 Hz (30 cm, 2° of yaw). The second frame draws its own noise and
+dropouts, so no point of it lies exactly on a point of the first, as in a real pair.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .depth_camera import DEPTH_RANGE, camera_rays, kinect_sigma
+from .fold_scenes import fold_scene
+from .lidar import LIDAR_RANGE, lidar_rays, lidar_scene
+from .range_frame import RangeFrame, simulate
+from .range_scans import FOLD_KINDS
+from .raycast import Scene
+from .seeds import derive_seed
+
+#: (translation in m, rotation in degrees) of the sensor between the two frames of a pair.
+DEPTH_MOTION = (0.05, 2.0)
+LIDAR_MOTION = (0.30, 2.0)
+#: The LiDAR's range noise (m), as `lidar.lidar_scan` draws it by default.
+LIDAR_SIGMA = 0.015
+
+
+@dataclass(frozen=True)
+class ViewPair:
+    """Two frames of one scene and the rigid motion (4 × 4) that maps the second frame's points into the first's
+    sensor frame."""
+
+    first: RangeFrame
+    second: RangeFrame
+    second_to_first: np.ndarray
+
+
+def fold_pair(index: int, seed: int = 0, width: int = 640, height: int = 480) -> ViewPair:
+    """The fold frame `range_scans.fold_frames(n, seed)[index]` and a second frame of its scene after DEPTH_MOTION."""
+    kind = FOLD_KINDS[index % len(FOLD_KINDS)]
+    scene_seed = derive_seed(derive_seed(seed, index), f"fold-{kind}", 0)  # the seed `fold_frames` gives that frame
+    scene = fold_scene(scene_seed, kind)
+    rays = camera_rays(width, height)
+
+    def shoot(view: Scene, *noise: str) -> RangeFrame:
+        rng = np.random.default_rng(derive_seed(scene_seed, "fold", kind, *noise))
+        name = f"fold_{kind}_{scene_seed}" + ("_moved" if len(noise) > 1 else "")
+        return simulate(name, "depth", view, rays, kinect_sigma, DEPTH_RANGE, rng, (height, width))
+
+    moved, motion = _moved(scene, DEPTH_MOTION, np.random.default_rng(derive_seed(scene_seed, "second view")))
+    return ViewPair(shoot(scene, "noise"), shoot(moved, "second view", "noise"), motion)
+
+
+def lidar_pair(index: int, seed: int = 0, beams: int = 32, azimuth_step_deg: float = 0.2) -> ViewPair:
+    """The LiDAR scan `range_scans.lidar_scans(n, seed)[index]` and a second scan of its yard after LIDAR_MOTION
+    (the yaw about the vertical, as a vehicle turns)."""
+    scan_seed = derive_seed(seed, "lidar", index)  # the seed `lidar_scans` gives that scan
+    scene = lidar_scene(scan_seed)
+    rays = lidar_rays(beams, azimuth_step_deg)
+    shape = (beams, len(rays) // beams)
+
+    def shoot(view: Scene, *noise: str) -> RangeFrame:
+        rng = np.random.default_rng(derive_seed(scan_seed, "lidar", *noise))
+        name = f"lidar_{scan_seed}" + ("_moved" if len(noise) > 1 else "")
+
+        def sigma(t: np.ndarray) -> np.ndarray:
+            return np.full_like(t, LIDAR_SIGMA)
+
+        return simulate(name, "lidar", view, rays, sigma, LIDAR_RANGE, rng, shape)
+
+    rng = np.random.default_rng(derive_seed(scan_seed, "second view"))
+    moved, motion = _moved(scene, LIDAR_MOTION, rng, axis=np.array([0.0, 0.0, 1.0]))
+    return ViewPair(shoot(scene, "noise"), shoot(moved, "second view", "noise"), motion)
+
+
+def _moved(
+    scene: Scene, motion: tuple[float, float], rng: np.random.Generator, axis: np.ndarray | None = None
+) -> tuple[Scene, np.ndarray]:
+    """The scene with its sensor moved by `motion` (translation along a random direction, rotation about `axis` or a
+    random one, both in the sensor's frame), and the 4 × 4 map from the moved sensor's frame into the first's."""
+    step, degrees = motion
+    direction = _unit(rng.standard_normal(3))
+    axis = _unit(rng.standard_normal(3)) if axis is None else axis
+    turn = rotation_about(axis, np.radians(degrees) * rng.choice([-1.0, 1.0]))
+    second_to_first = np.eye(4)
+    second_to_first[:3, :3], second_to_first[:3, 3] = turn, step * direction
+    # sensor -> world is p ↦ R p + o; the moved sensor's R' = R · turn and o' = o + R · t
+    moved = replace(scene, origin=scene.origin + scene.rotation @ (step * direction), rotation=scene.rotation @ turn)
+    return moved, second_to_first
+
+
+def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
+    """The 3 × 3 rotation by `angle` radians about the unit `axis` (Rodrigues)."""
+    x, y, z = axis
+    cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + np.sin(angle) * cross + (1 - np.cos(angle)) * cross @ cross
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
