@@ -11,6 +11,8 @@ import os
 import subprocess
 import sys
 
+from triplet_normal_ros.core.config import memory
+
 #: Estimate a simulated 640×480 depth frame by window `pca` five times and print whether the estimator kept freed
 #: memory and the fewest minor page faults of the last three calls (the fewest: a page the system reclaims from an
 #: idle process, or a thread's first stack, faults once and says nothing of the frames' arrays). With `force_fresh`,
@@ -55,3 +57,24 @@ def test_a_frame_after_the_first_faults_no_fresh_pages_in() -> None:
 
 def test_the_environment_variable_leaves_the_allocator_alone() -> None:
     assert _later_frames("plain", keep="0")["kept"] is False
+
+
+class _CLibrary:
+    """A C library's mallopt that takes mmap thresholds up to `largest` and records what it was told."""
+
+    def __init__(self, largest: int) -> None:
+        self.largest, self.told = largest, []
+
+    def mallopt(self, parameter: int, value: int) -> int:
+        self.told.append((parameter, value))
+        return int(parameter != -3 or value <= self.largest)
+
+
+def test_a_glibc_that_refuses_256_mib_gets_the_documented_32_and_nothing_without_an_mmap_threshold() -> None:
+    """Older glibc versions refuse an mmap threshold above 32 MiB: the setting falls back to it. A library that takes
+    neither leaves the trim threshold alone too (alone it would turn glibc's adaptive thresholds off)."""
+    recent, older, neither = _CLibrary(1 << 40), _CLibrary(32 << 20), _CLibrary(0)
+    assert memory.set_thresholds(recent.mallopt) == memory.KEEP_BYTES
+    assert memory.set_thresholds(older.mallopt) == memory.DOCUMENTED_MMAP_MAX == 32 << 20
+    assert older.told == [(-3, memory.KEEP_BYTES), (-3, 32 << 20), (-1, memory.KEEP_BYTES)]
+    assert memory.set_thresholds(neither.mallopt) == 0 and all(parameter == -3 for parameter, _ in neither.told)

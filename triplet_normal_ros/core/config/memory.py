@@ -10,9 +10,11 @@ of window `pca`'s time (docs/HISTORY.md, "The memory a frame frees").
 PCL's and Open3D's estimators keep their buffers from one call to the next; here the allocator keeps them: requests
 below KEEP_BYTES come from the heap, and the heap's free top goes back to the system only once more than KEEP_BYTES
 of it is free (then all of it goes, down to glibc's small top pad). So a stream of frames reuses one heap, and the
-process holds what its largest frame used rather than giving it back between frames. A single array above the
+process holds what its largest frame used rather than giving it back between frames. A single array above the mmap
 threshold is still mapped afresh, and so is one above 64 MB requested by a thread other than the main thread (glibc's
-per-thread heaps are no larger); the node estimates in its main thread.
+per-thread heaps are no larger); the node estimates in its main thread. A glibc that refuses an mmap threshold above
+its documented 32 MiB gets 32 MiB: a 640×480 frame's arrays stay below it, a 1280×960 frame's 98 MB moment table is
+then mapped afresh each frame.
 
 Set TRIPLET_NORMAL_KEEP_MEMORY=0 to leave the allocator as it is. With a C library other than glibc (musl, macOS,
 Windows) nothing changes.
@@ -23,6 +25,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import os
+from collections.abc import Callable
 
 #: The mmap and trim thresholds asked for: above a camera frame's largest arrays (a 1280×960 frame's moment table is
 #: 98 MB), and the most free heap a process keeps before it hands the heap's top back.
@@ -45,6 +48,14 @@ def keep_freed_memory() -> bool:
         mallopt = ctypes.CDLL(None).mallopt  # the C library the process already runs on
     except (OSError, AttributeError, TypeError):  # TypeError: Windows has no process-wide C library handle
         return False  # not glibc: its allocator has no such thresholds
-    trimmed = bool(mallopt(_M_TRIM_THRESHOLD, KEEP_BYTES))
-    mapped = bool(mallopt(_M_MMAP_THRESHOLD, KEEP_BYTES)) or bool(mallopt(_M_MMAP_THRESHOLD, DOCUMENTED_MMAP_MAX))
-    return trimmed and mapped
+    return set_thresholds(mallopt) > 0
+
+
+def set_thresholds(mallopt: Callable[[int, int], int]) -> int:
+    """The mmap threshold (KEEP_BYTES, else DOCUMENTED_MMAP_MAX where the C library refuses more) and then the trim
+    threshold, through `mallopt`; the mmap threshold taken, or 0 where neither was, in which case the trim threshold is
+    left alone too (setting it alone would switch glibc's adaptive thresholds off and keep nothing)."""
+    for threshold in (KEEP_BYTES, DOCUMENTED_MMAP_MAX):
+        if mallopt(_M_MMAP_THRESHOLD, threshold):
+            return threshold if mallopt(_M_TRIM_THRESHOLD, KEEP_BYTES) else 0
+    return 0
