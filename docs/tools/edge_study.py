@@ -28,7 +28,7 @@ def main() -> None:
     args = parser.parse_args()
     rows = _rows(args.checkpoints, args.device, "fold")
     scores, _ = range_eval.evaluate_set("fold", rows, quick=False, seed=args.seed)
-    segments, _ = segment_eval.evaluate_segments(rows, quick=False, seed=args.seed)
+    segments, _ = segment_eval.evaluate_segments("fold", rows, quick=False, seed=args.seed)
     print("| normals | fold MSAE | near edges | segment ARI | worst frame | recovered |")
     print("| --- | ---: | ---: | ---: | ---: | ---: |")
     for fold, seg in zip(scores, segments[1:], strict=True):

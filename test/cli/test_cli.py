@@ -227,14 +227,19 @@ def test_eval_default_sets_skip_pcpnet_without_its_data(tmp_path: Path) -> None:
         assert ball.endswith("%") and 0 <= float(ball[:-1]) < 100
         answered = rows[PCA_WINDOW]["answered"]
         assert answered.endswith("%") and 50 < float(answered[:-1]) <= 100  # the share with a normal
-    segments = read_section(doc, "eval-segment")  # planar segmentation by region growing on the fold frames
+    segments = read_section(doc, "eval-segment")  # planar segmentation of the fold frames and the LiDAR scans
     cells = [[c.strip() for c in line.split("|")[1:-1]] for line in segments.splitlines() if line.startswith("| ")]
-    rows = {c[0]: c for c in cells[2:]}
-    assert rows["exact normals (the reference)"][1:4] == ["1.000", "1.000", "100% (4 of 4)"]
-    ari = float(rows["PCA, k = 30"][1])
-    assert -1.0 <= ari < 1.0  # scattered normals cost segments
-    assert "images/segments_fold.png" in segments
-    assert (doc.parent / "images" / "segments_fold.png").stat().st_size > 10_000
+    rows = {(c[0].split()[0], c[1]): c for c in cells[2:]}
+    for kind in ("close-range", "LiDAR"):
+        exact = rows[(kind, "exact normals (the reference)")]
+        assert exact[2:4] == ["1.000", "1.000"] and exact[4].startswith("100% (") and exact[5] == "100.0%"
+        ari = float(rows[(kind, "PCA, k = 30")][2])
+        assert -1.0 <= ari < 1.0  # scattered normals cost segments
+        answered = rows[(kind, "hybrid, no checkpoint named (the node's default)")][5]
+        assert answered.endswith("%") and 50 < float(answered[:-1]) <= 100
+    for kind in ("fold", "lidar"):
+        assert f"images/segments_{kind}.png" in segments
+        assert (doc.parent / "images" / f"segments_{kind}.png").stat().st_size > 10_000
     matrix = read_section(doc, "eval-matrix")  # every shipped checkpoint, both methods, against PCA per regime
     cells = [[c.strip() for c in line.split("|")[1:-1]] for line in matrix.splitlines() if line.startswith("| ")]
     header, rows = cells[0], {c[0]: c for c in cells[2:]}

@@ -1,11 +1,16 @@
-"""Region growing on the pixel grid and the scores that compare two segmentations."""
+"""Region growing on the pixel grid and on a scan's beam grid, and the scores that compare two segmentations."""
 
 import numpy as np
 import pytest
 
 from triplet_normal_ros.core.estimator import NormalEstimator
-from triplet_normal_ros.evaluation.segment_eval import EXACT, evaluate_segments
-from triplet_normal_ros.evaluation.segmentation import adjusted_rand_index, recovered_segments, region_segments
+from triplet_normal_ros.evaluation.segment_eval import EXACT, SETS, evaluate_segments
+from triplet_normal_ros.evaluation.segmentation import (
+    adjusted_rand_index,
+    recovered_segments,
+    region_segments,
+    scan_segments,
+)
 
 
 def _fold(width: int = 60, height: int = 40, pitch: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
@@ -82,9 +87,58 @@ def test_frames_of_other_shapes_are_refused():
         region_segments(np.zeros((4, 4, 3)), np.zeros((4, 3)))
 
 
-def test_a_study_segments_other_frames_than_eval_when_given_another_seed():
-    """Studies choose on frames eval never scores: the seed must reach the frames."""
-    rows = {"PCA, window": NormalEstimator("pca", radius=0.05, device="cpu")}
-    eval_frames = evaluate_segments(rows, quick=True)[1]["picture"][EXACT]
-    study_frames = evaluate_segments(rows, quick=True, seed=100)[1]["picture"][EXACT]
-    assert eval_frames.shape == study_frames.shape and not np.array_equal(eval_frames, study_frames)
+def _ground_rings(ranges=(4.0, 5.0, 6.5, 9.0, 14.0), columns: int = 360) -> tuple[np.ndarray, np.ndarray]:
+    """A scan of flat ground: one beam per range (row), `columns` azimuths around the sensor, normals +z."""
+    azimuth = np.radians(np.arange(columns) * 360.0 / columns)
+    ring = np.stack([np.cos(azimuth), np.sin(azimuth), np.zeros(columns)], axis=-1)
+    points = np.array(ranges)[:, None, None] * ring[None]
+    return points, np.broadcast_to([0.0, 0.0, 1.0], points.shape).copy()
+
+
+def test_a_scan_joins_ground_rings_metres_apart_where_a_distance_test_splits_them():
+    points, normals = _ground_rings()
+    assert len(np.unique(scan_segments(points, normals))) == 1
+    assert len(np.unique(region_segments(points, normals))) > 5  # 1 to 5 m between rings
+
+
+def test_a_scan_joins_the_ground_under_normals_a_few_degrees_off():
+    """Estimated normals tilted 3° put a ring 1 m on about 5 cm off the plane: still one surface."""
+    points, _ = _ground_rings(ranges=(4.0, 5.0, 6.0, 7.0))
+    tilt = np.radians(3.0)
+    tilted = np.broadcast_to([np.sin(tilt), 0.0, np.cos(tilt)], points.shape).copy()
+    assert len(np.unique(scan_segments(points, tilted))) == 1
+
+
+def test_a_scan_keeps_apart_a_face_and_a_parallel_one_behind_it():
+    """Two walls facing the sensor, the second 0.5 m behind the first from column 20 on: normals agree, planes do
+    not."""
+    height, width = 8, 40
+    y, z = np.meshgrid(np.linspace(-1, 1, width), np.linspace(0, 1, height))
+    points = np.stack([np.where(np.arange(width) < 20, 5.0, 5.5)[None, :].repeat(height, 0), y, z], axis=-1)
+    normals = np.broadcast_to([-1.0, 0.0, 0.0], points.shape).copy()
+    labels = scan_segments(points, normals)
+    assert len(np.unique(labels)) == 2 and labels[0, 0] != labels[0, -1]
+
+
+def test_a_scan_closes_on_itself_across_its_first_and_last_columns():
+    """A ring cut by one missing column stays one segment: the scan's last column lies beside its first."""
+    points, normals = _ground_rings(ranges=(5.0,))
+    points[0, 180] = np.nan
+    assert len(np.unique(scan_segments(points, normals)[0, [0, 90, 270, 359]])) == 1
+    assert len(np.unique(region_segments(points, normals, max_distance=1.0)[0, [90, 270]])) == 2
+
+
+def test_a_scan_splits_ground_and_a_wall_at_their_fold():
+    points, normals = _fold()
+    assert set(np.unique(scan_segments(points, normals))) == {0, 1}
+
+
+@pytest.mark.parametrize("kind", SETS)
+def test_a_study_segments_other_frames_than_eval_when_given_another_seed(kind: str):
+    """Studies choose on frames eval never scores: the seed must reach each set's frames; the exact normals score
+    1 against themselves."""
+    rows = {"PCA, window": NormalEstimator("pca", radius=SETS[kind].radius, device="cpu")}
+    scores, summary = evaluate_segments(kind, rows, quick=True)
+    study = evaluate_segments(kind, rows, quick=True, seed=100)[1]["picture"][EXACT]
+    assert summary["picture"][EXACT].shape == study.shape and not np.array_equal(summary["picture"][EXACT], study)
+    assert scores[0].name == EXACT and scores[0].ari == [1.0] and scores[0].recovered == scores[0].segments > 0

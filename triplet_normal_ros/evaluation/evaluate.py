@@ -242,13 +242,17 @@ def run(
 
 
 def _segment_set(device: str, quick: bool, header: str, out: Path | None) -> None:
-    """The segmentation set: its table to stdout and, with `out`, into the eval-segment block beside its picture."""
+    """The segmentation sets: their table to stdout and, with `out`, into the eval-segment block beside a picture of
+    each set's first frame."""
     start = time.perf_counter()
-    scores, summary = segment_eval.evaluate_segments(segment_eval.segment_estimators(device), quick)
-    image = None
-    if out is not None:
-        image = segment_eval.draw_segments(summary["picture"], Path(out).parent / "images" / "segments_fold.png")
-    markdown = segment_eval.segment_markdown(scores, summary, header.split("\n")[0], image)
+    tables, images = {}, {}
+    for kind in segment_eval.SETS:
+        scores, summary = segment_eval.evaluate_segments(kind, segment_eval.segment_estimators(kind, device), quick)
+        tables[kind] = scores, summary
+        if out is not None:
+            path = Path(out).parent / "images" / f"segments_{kind}.png"
+            images[kind] = segment_eval.draw_segments(kind, summary["picture"], path)
+    markdown = segment_eval.segment_markdown(tables, header.split("\n")[0], images)
     markdown += f"\n\nWall time {(time.perf_counter() - start) / 60:.1f} min."
     print(markdown)
     if out is not None:

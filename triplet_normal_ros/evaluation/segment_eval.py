@@ -1,153 +1,234 @@
-"""`eval --sets segment`: what each method's normals do to a planar segmentation of held-out fold frames.
+"""`eval --sets segment`: what each method's normals do to a planar segmentation of held-out frames and scans.
 
-Every method estimates every valid pixel of each close-range fold frame (boxes, stairs, a room corner, a table, a
-shelf, cylinders: the frames `eval-fold` scores, seeds nothing was trained or tuned on) at r = 0.05 m. Each set of
-normals is segmented by region growing (`segmentation.region_segments`) and scored against the segments of the exact
-normals: the adjusted Rand index and the share of true segments recovered. Blurred normals at an edge let a box leak
-into the floor; this is where a learned estimator's sharper edges pay off for a robot.
+Two sets, seeds nothing was trained or tuned on. The close-range fold frames `eval-fold` scores (boxes, stairs, a room
+corner, a table, a shelf, cylinders) at r = 0.05 m, segmented by region growing on the pixel grid
+(`segmentation.region_segments`); blurred normals at an edge let a box leak into the floor, which is where a learned
+estimator's sharper edges pay off for a robot. And the LiDAR scans `eval-lidar` scores (a yard of crates and pillars
+on the ground) with the LiDAR preset's ball, segmented on the scan's beam grid by the coplanarity test
+(`segmentation.scan_segments`): the ground's rings lie metres apart, so no distance test joins them. Every method
+estimates every valid point; each set of normals is scored against the segments of the exact normals with the same
+test: the adjusted Rand index, the share of true segments recovered, and the share of points that got a normal (a
+point without one is a segment of its own).
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from ..core.config.conventions import DEPTH_RADIUS
+from ..core.config.conventions import DEPTH_RADIUS, LIDAR_RADIUS, LIDAR_RANGE_SCALE
 from ..core.estimator import NormalEstimator
-from ..simulation.range_scans import fold_frames
+from ..simulation.range_frame import RangeFrame
+from ..simulation.range_scans import fold_frames, lidar_scans
 from .range_eval import PCA_WINDOW
 from .segmentation import (
     MAX_ANGLE_DEG,
     MAX_DISTANCE,
     MIN_IOU,
     MIN_SEGMENT,
+    SCAN_MAX_ANGLE_DEG,
+    SCAN_MAX_OFFSET,
+    SCAN_MIN_SEGMENT,
     adjusted_rand_index,
     recovered_segments,
     region_segments,
+    scan_segments,
 )
 
-#: Fold frames segmented (seeds 0..n-1), and the smaller frames of --quick (tests only).
-FRAMES, QUICK_FRAMES, QUICK_SIZE = 3, 1, (160, 120)
 EXACT = "exact normals (the reference)"
+NODE = "hybrid, no checkpoint named (the node's default)"
+#: The fold frames' picture is drawn from these rows' labels; the scans' too.
+_PICTURED = (PCA_WINDOW, "PCA, k = 30", NODE)
+
+
+@dataclass(frozen=True)
+class SegmentSet:
+    """One set: its frames (eval's seeds 0..n-1, or small ones for --quick), the ball its methods run with, the
+    segmentation that joins its points and the smallest true segment the recovered share counts."""
+
+    title: str
+    radius: float
+    range_scale: float
+    frames: int
+    segments: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    min_segment: int
+    rule: str
+
+    def load(self, kind: str, quick: bool, seed: int) -> list[RangeFrame]:
+        if kind == "fold":
+            return fold_frames(1, seed, width=160, height=120) if quick else fold_frames(self.frames, seed)
+        return lidar_scans(1, seed, azimuth_step_deg=1.0) if quick else lidar_scans(self.frames, seed)
+
+
+SETS = {
+    "fold": SegmentSet(
+        "close-range fold frames (`eval-fold`'s)",
+        DEPTH_RADIUS,
+        0.0,
+        3,
+        region_segments,
+        MIN_SEGMENT,
+        f"region growing on the pixel grid: 4-neighbours join within {MAX_DISTANCE} m and {MAX_ANGLE_DEG:g}° (PCL "
+        "`RegionGrowing`'s smoothness test, no curvature test)",
+    ),
+    "lidar": SegmentSet(
+        "LiDAR scans (`eval-lidar`'s)",
+        LIDAR_RADIUS,
+        LIDAR_RANGE_SCALE,
+        3,
+        scan_segments,
+        SCAN_MIN_SEGMENT,
+        f"region growing on the beam grid, its columns closed into a ring: 4-neighbours join when their normals lie "
+        f"within {SCAN_MAX_ANGLE_DEG:g}° and each point within {SCAN_MAX_OFFSET} m of the other's tangent plane, "
+        "however far apart (the ground's rings lie metres apart)",
+    ),
+}
 
 
 @dataclass
 class SegmentScore:
-    """One method's segmentation scores over the frames."""
+    """One method's segmentation scores over a set's frames."""
 
     name: str
     ari: list[float] = field(default_factory=list)
     recovered: int = 0
     segments: int = 0
+    answered: list[float] = field(default_factory=list)
     seconds: float = 0.0
 
     def recovered_share(self) -> float:
         return self.recovered / self.segments if self.segments else float("nan")
 
 
-def segment_estimators(device: str) -> dict[str, NormalEstimator]:
-    """The rows: PCA as PCL's integral images and Open3D's KNN30 would give it, each method with no checkpoint named
-    (what the node and `estimate` give on this device), and hybrid with each shipped checkpoint. `learned` with the
-    default checkpoint on every pixel is left out: on a 2-core CPU it takes minutes a frame."""
-    r = DEPTH_RADIUS
+def segment_estimators(kind: str, device: str) -> dict[str, NormalEstimator]:
+    """The rows, each at the set's radius and range scale: PCA as PCL's integral images and Open3D's KNN30 would give
+    it, each method with no checkpoint named (what the node and `estimate` give on this device), and hybrid with each
+    shipped checkpoint. `learned` with the default checkpoint on every point is left out: on a 2-core CPU it takes
+    minutes a fold frame."""
+    spec = SETS[kind]
+    settings = {"radius": spec.radius, "range_scale": spec.range_scale, "device": device}
     rows = {
-        PCA_WINDOW: NormalEstimator("pca", radius=r, device=device),
-        "PCA, k = 30": NormalEstimator("pca", radius=r, k=30, device=device),
-        "hybrid, no checkpoint named (the node's default)": NormalEstimator("hybrid", radius=r, device=device),
-        "learned, no checkpoint named (`estimate`'s default)": NormalEstimator("learned", radius=r, device=device),
+        PCA_WINDOW: NormalEstimator("pca", **settings),
+        "PCA, k = 30": NormalEstimator("pca", k=30, **settings),
+        NODE: NormalEstimator("hybrid", **settings),
+        "learned, no checkpoint named (`estimate`'s default)": NormalEstimator("learned", **settings),
     }
     for name in ("range", "lite", "default"):
-        rows[f"hybrid, {name}"] = NormalEstimator("hybrid", radius=r, checkpoint=name, device=device)
+        rows[f"hybrid, {name}"] = NormalEstimator("hybrid", checkpoint=name, **settings)
     return rows
 
 
 def evaluate_segments(
-    estimators: dict[str, NormalEstimator], quick: bool, seed: int = 0
+    kind: str, estimators: dict[str, NormalEstimator], quick: bool, seed: int = 0
 ) -> tuple[list[SegmentScore], dict]:
-    """Segment every frame (seeds from `seed`; eval's from 0) with every method's normals; returns the scores and what
-    the picture needs."""
-    if quick:
-        frames = fold_frames(QUICK_FRAMES, seed, width=QUICK_SIZE[0], height=QUICK_SIZE[1])
-    else:
-        frames = fold_frames(FRAMES, seed)
+    """Segment every frame of set `kind` (seeds from `seed`; eval's from 0) with every method's normals; returns the
+    scores and what the picture needs."""
+    spec = SETS[kind]
+    frames = spec.load(kind, quick, seed)
     scores = [SegmentScore(EXACT)] + [SegmentScore(name) for name in estimators]
     picture: dict[str, np.ndarray] = {}
-    for frame in tqdm(frames, desc="eval segment", unit="frame", disable=None, file=sys.stderr):
+    for frame in tqdm(frames, desc=f"eval segment {kind}", unit="frame", disable=None, file=sys.stderr):
         points = np.where(frame.valid[..., None], frame.points, np.nan)
-        reference = region_segments(points, frame.normals)
-        _score(scores[0], reference, reference, 0.0)
-        picture = picture or {EXACT: reference}
+        reference = spec.segments(points, frame.normals)
+        _score(scores[0], reference, reference, 1.0, 0.0, spec.min_segment)
+        picture = picture or {"points": points, EXACT: reference}
         for score, estimator in zip(scores[1:], estimators.values(), strict=True):
             start = time.perf_counter()
             normals, _ = estimator.estimate(frame.points.reshape(-1, 3), shape=frame.points.shape[:2])
             seconds = time.perf_counter() - start
-            labels = region_segments(points, np.where(frame.valid[..., None], normals.reshape(points.shape), np.nan))
-            _score(score, reference, labels, seconds)
-            if len(picture) < 4 and score.name in _PICTURED:
+            normals = np.where(frame.valid[..., None], normals.reshape(points.shape), np.nan)
+            answered = float(np.isfinite(normals[frame.valid]).all(axis=1).mean())
+            labels = spec.segments(points, normals)
+            _score(score, reference, labels, answered, seconds, spec.min_segment)
+            if len(picture) < 2 + len(_PICTURED) and score.name in _PICTURED:
                 picture[score.name] = labels
     return scores, {"frames": len(frames), "picture": picture}
 
 
-_PICTURED = (PCA_WINDOW, "hybrid, no checkpoint named (the node's default)",
-             "hybrid, default")  # fmt: skip
-
-
-def _score(score: SegmentScore, reference: np.ndarray, labels: np.ndarray, seconds: float) -> None:
+def _score(
+    score: SegmentScore, reference: np.ndarray, labels: np.ndarray, answered: float, seconds: float, min_size: int
+) -> None:
     score.ari.append(adjusted_rand_index(reference, labels))
-    recovered, count = recovered_segments(reference, labels)
+    recovered, count = recovered_segments(reference, labels, min_size=min_size)
     score.recovered += recovered
     score.segments += count
+    score.answered.append(answered)
     score.seconds += seconds
 
 
-def segment_markdown(scores: list[SegmentScore], summary: dict, header: str, image: Path | None) -> str:
-    """The set's table, one row per method, and the picture of the first frame when one was drawn."""
-    rows = [
-        f"| {s.name} | {np.mean(s.ari):.3f} | {min(s.ari):.3f} | {s.recovered_share():.0%} "
-        f"({s.recovered} of {s.segments}) | {s.seconds:.1f} |"
-        for s in scores
-    ]
+def segment_markdown(tables: dict[str, tuple[list[SegmentScore], dict]], header: str, images: dict[str, Path]) -> str:
+    """One table, each set's rows in turn, and each set's picture of its first frame where one was drawn."""
+    sets = "; ".join(
+        f"{SETS[kind].title}: {summary['frames']} (seeds 0-{summary['frames'] - 1}), every valid point estimated at "
+        f"r = {SETS[kind].radius} m{_growth(SETS[kind])}, {SETS[kind].rule}, recovered counting true segments of at "
+        f"least {SETS[kind].min_segment} points"
+        for kind, (_, summary) in tables.items()
+    )
     lines = [
-        "## Planar segmentation of fold frames (`triplet-normal eval`)",
+        "## Planar segmentation of fold frames and LiDAR scans (`triplet-normal eval`)",
         "",
         header,
-        f"Frames: {summary['frames']} close-range fold frames (`eval-fold`'s seeds 0-{summary['frames'] - 1}), every "
-        f"valid pixel estimated at r = {DEPTH_RADIUS} m. Region growing on the pixel grid: 4-neighbours join within "
-        f"{MAX_DISTANCE} m and {MAX_ANGLE_DEG:g}° (PCL `RegionGrowing`'s smoothness test, no curvature test). ARI: "
-        "adjusted Rand index against the segments of the exact normals (1 = the same segments, 0 = chance), mean and "
-        f"worst frame. Recovered: true segments of at least {MIN_SEGMENT} pixels that one segment overlaps with IoU "
-        f"≥ {MIN_IOU}.",
+        f"Frames: {sets}. ARI: adjusted Rand index against the segments of the exact normals (1 = the same segments, "
+        "0 = chance), mean and worst frame; a point without a normal is a segment of its own. Recovered: true "
+        f"segments that one segment overlaps with IoU ≥ {MIN_IOU}. Answered: the share of valid points with a normal.",
         "",
-        "| normals | ARI | worst frame | recovered | seconds |",
-        "| --- | ---: | ---: | ---: | ---: |",
-        *rows,
+        "| frames | normals | ARI | worst frame | recovered | answered | seconds |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: |",
     ]
-    if image is not None:
-        lines += ["", f"![segments of the first fold frame](images/{image.name})"]
+    for kind, (scores, _) in tables.items():
+        lines += [
+            f"| {SETS[kind].title} | {s.name} | {np.mean(s.ari):.3f} | {min(s.ari):.3f} | {s.recovered_share():.0%} "
+            f"({s.recovered} of {s.segments}) | {np.mean(s.answered):.1%} | {s.seconds:.1f} |"
+            for s in scores
+        ]
+    for kind, image in images.items():
+        lines += ["", f"![segments of the first of the {SETS[kind].title}](images/{image.name})"]
     return "\n".join(lines)
 
 
-def draw_segments(picture: dict[str, np.ndarray], path: Path) -> Path:
-    """Each pictured method's segments of the first frame side by side, one random colour per segment."""
+def _growth(spec: SegmentSet) -> str:
+    return f", growing to {spec.range_scale:g} × the range where that is larger" if spec.range_scale else ""
+
+
+def draw_segments(kind: str, picture: dict[str, np.ndarray], path: Path) -> Path:
+    """Each pictured method's segments of the first frame side by side, one random colour per segment, black where a
+    point has no normal: a fold frame as its image, a scan from above (the sensor at the centre, out to 25 m)."""
     import matplotlib  # here only: drawing is optional, and importing the evaluation must stay cheap
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(picture), figsize=(4 * len(picture), 3.4))
-    for ax, (name, labels) in zip(np.atleast_1d(axes), picture.items(), strict=True):
+    points = picture["points"]
+    panels = {name: labels for name, labels in picture.items() if name != "points"}
+    size = (4, 3.4) if kind == "fold" else (4, 4)
+    fig, axes = plt.subplots(1, len(panels), figsize=(size[0] * len(panels), size[1]))
+    for ax, (name, labels) in zip(np.atleast_1d(axes), panels.items(), strict=True):
         colours = np.random.default_rng(0).uniform(0.15, 1.0, (int(labels.max()) + 2, 3))
         image = np.where((labels >= 0)[..., None], colours[np.maximum(labels, 0)], 0.0)
-        ax.imshow(image, interpolation="nearest")
+        if kind == "fold":
+            ax.imshow(image, interpolation="nearest")
+            ax.axis("off")
+        else:
+            _draw_from_above(ax, points, image)
         ax.set_title(name, fontsize=8)
-        ax.axis("off")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _draw_from_above(ax, points: np.ndarray, colours: np.ndarray, reach: float = 25.0) -> None:
+    flat, flat_colours = points.reshape(-1, 3), colours.reshape(-1, 3)
+    shown = np.isfinite(flat).all(axis=1) & (np.hypot(flat[:, 0], flat[:, 1]) < reach)
+    ax.scatter(flat[shown, 0], flat[shown, 1], c=flat_colours[shown], s=1.0, linewidths=0)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)", fontsize=7)
+    ax.set_ylabel("y (m)", fontsize=7)
+    ax.tick_params(labelsize=6)
