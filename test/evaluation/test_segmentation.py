@@ -87,7 +87,7 @@ def test_frames_of_other_shapes_are_refused():
         region_segments(np.zeros((4, 4, 3)), np.zeros((4, 3)))
 
 
-def _ground_rings(ranges=(4.0, 5.0, 6.5, 9.0, 14.0), columns: int = 360) -> tuple[np.ndarray, np.ndarray]:
+def _ground_rings(ranges=(4.0, 5.0, 6.5, 9.0, 14.0), columns: int = 3600) -> tuple[np.ndarray, np.ndarray]:
     """A scan of flat ground: one beam per range (row), `columns` azimuths around the sensor, normals +z."""
     azimuth = np.radians(np.arange(columns) * 360.0 / columns)
     ring = np.stack([np.cos(azimuth), np.sin(azimuth), np.zeros(columns)], axis=-1)
@@ -98,7 +98,7 @@ def _ground_rings(ranges=(4.0, 5.0, 6.5, 9.0, 14.0), columns: int = 360) -> tupl
 def test_a_scan_joins_ground_rings_metres_apart_where_a_distance_test_splits_them():
     points, normals = _ground_rings()
     assert len(np.unique(scan_segments(points, normals))) == 1
-    assert len(np.unique(region_segments(points, normals))) > 5  # 1 to 5 m between rings
+    assert len(np.unique(region_segments(points, normals))) == 5  # each ring joins along itself, 1-5 m from the next
 
 
 def test_a_scan_joins_the_ground_under_normals_a_few_degrees_off():
@@ -122,10 +122,20 @@ def test_a_scan_keeps_apart_a_face_and_a_parallel_one_behind_it():
 
 def test_a_scan_closes_on_itself_across_its_first_and_last_columns():
     """A ring cut by one missing column stays one segment: the scan's last column lies beside its first."""
-    points, normals = _ground_rings(ranges=(5.0,))
+    points, normals = _ground_rings(ranges=(5.0,), columns=360)
     points[0, 180] = np.nan
     assert len(np.unique(scan_segments(points, normals)[0, [0, 90, 270, 359]])) == 1
     assert len(np.unique(region_segments(points, normals, max_distance=1.0)[0, [90, 270]])) == 2
+
+
+def test_a_scan_closes_each_beam_on_itself_not_on_the_next():
+    """Two half rings on one plane, the first beam's in its last half of columns, the second's in its first half: no
+    column has both, so only a wrap from one beam's last column to the next beam's first could join them."""
+    points, normals = _ground_rings(ranges=(5.0, 6.0), columns=360)
+    points[0, :180] = np.nan
+    points[1, 180:] = np.nan
+    labels = scan_segments(points, normals)
+    assert labels[0, 359] >= 0 and labels[1, 0] >= 0 and labels[0, 359] != labels[1, 0]
 
 
 def test_a_scan_splits_ground_and_a_wall_at_their_fold():

@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -41,29 +42,42 @@ from .segmentation import (
     scan_segments,
 )
 
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
 EXACT = "exact normals (the reference)"
 NODE = "hybrid, no checkpoint named (the node's default)"
-#: The fold frames' picture is drawn from these rows' labels; the scans' too.
+#: The rows each set's picture shows beside the exact normals: the two PCAs robots run today (PCL's integral images,
+#: Open3D's KNN30) and what the node gives.
 _PICTURED = (PCA_WINDOW, "PCA, k = 30", NODE)
+
+
+def _fold_frames(count: int, quick: bool, seed: int) -> list[RangeFrame]:
+    return fold_frames(1, seed, width=160, height=120) if quick else fold_frames(count, seed)
+
+
+def _lidar_scans(count: int, quick: bool, seed: int) -> list[RangeFrame]:
+    return lidar_scans(1, seed, azimuth_step_deg=1.0) if quick else lidar_scans(count, seed)
 
 
 @dataclass(frozen=True)
 class SegmentSet:
-    """One set: its frames (eval's seeds 0..n-1, or small ones for --quick), the ball its methods run with, the
-    segmentation that joins its points and the smallest true segment the recovered share counts."""
+    """One set: its frames (eval's seeds 0..n-1, or one small frame for --quick), the ball its methods run with, the
+    segmentation that joins its points, the smallest true segment the recovered share counts, and whether its picture
+    is the frame's image or the scan from above."""
 
     title: str
     radius: float
     range_scale: float
     frames: int
+    loader: Callable[[int, bool, int], list[RangeFrame]]
     segments: Callable[[np.ndarray, np.ndarray], np.ndarray]
     min_segment: int
     rule: str
+    from_above: bool = False
 
-    def load(self, kind: str, quick: bool, seed: int) -> list[RangeFrame]:
-        if kind == "fold":
-            return fold_frames(1, seed, width=160, height=120) if quick else fold_frames(self.frames, seed)
-        return lidar_scans(1, seed, azimuth_step_deg=1.0) if quick else lidar_scans(self.frames, seed)
+    def load(self, quick: bool, seed: int) -> list[RangeFrame]:
+        return self.loader(self.frames, quick, seed)
 
 
 SETS = {
@@ -72,6 +86,7 @@ SETS = {
         DEPTH_RADIUS,
         0.0,
         3,
+        _fold_frames,
         region_segments,
         MIN_SEGMENT,
         f"region growing on the pixel grid: 4-neighbours join within {MAX_DISTANCE} m and {MAX_ANGLE_DEG:g}° (PCL "
@@ -82,11 +97,13 @@ SETS = {
         LIDAR_RADIUS,
         LIDAR_RANGE_SCALE,
         3,
+        _lidar_scans,
         scan_segments,
         SCAN_MIN_SEGMENT,
         f"region growing on the beam grid, its columns closed into a ring: 4-neighbours join when their normals lie "
         f"within {SCAN_MAX_ANGLE_DEG:g}° and each point within {SCAN_MAX_OFFSET} m of the other's tangent plane, "
         "however far apart (the ground's rings lie metres apart)",
+        from_above=True,
     ),
 }
 
@@ -130,14 +147,17 @@ def evaluate_segments(
     """Segment every frame of set `kind` (seeds from `seed`; eval's from 0) with every method's normals; returns the
     scores and what the picture needs."""
     spec = SETS[kind]
-    frames = spec.load(kind, quick, seed)
+    frames = spec.load(quick, seed)
     scores = [SegmentScore(EXACT)] + [SegmentScore(name) for name in estimators]
     picture: dict[str, np.ndarray] = {}
-    for frame in tqdm(frames, desc=f"eval segment {kind}", unit="frame", disable=None, file=sys.stderr):
+    for index, frame in enumerate(
+        tqdm(frames, desc=f"eval segment {kind}", unit="frame", disable=None, file=sys.stderr)
+    ):
         points = np.where(frame.valid[..., None], frame.points, np.nan)
         reference = spec.segments(points, frame.normals)
         _score(scores[0], reference, reference, 1.0, 0.0, spec.min_segment)
-        picture = picture or {"points": points, EXACT: reference}
+        if index == 0:
+            picture = {"points": points, EXACT: reference}
         for score, estimator in zip(scores[1:], estimators.values(), strict=True):
             start = time.perf_counter()
             normals, _ = estimator.estimate(frame.points.reshape(-1, 3), shape=frame.points.shape[:2])
@@ -146,7 +166,7 @@ def evaluate_segments(
             answered = float(np.isfinite(normals[frame.valid]).all(axis=1).mean())
             labels = spec.segments(points, normals)
             _score(score, reference, labels, answered, seconds, spec.min_segment)
-            if len(picture) < 2 + len(_PICTURED) and score.name in _PICTURED:
+            if index == 0 and score.name in _PICTURED:
                 picture[score.name] = labels
     return scores, {"frames": len(frames), "picture": picture}
 
@@ -193,12 +213,13 @@ def segment_markdown(tables: dict[str, tuple[list[SegmentScore], dict]], header:
 
 
 def _growth(spec: SegmentSet) -> str:
+    """The words for a ball that grows with range, as config/lidar.yaml sets it; none for a fixed one."""
     return f", growing to {spec.range_scale:g} × the range where that is larger" if spec.range_scale else ""
 
 
 def draw_segments(kind: str, picture: dict[str, np.ndarray], path: Path) -> Path:
     """Each pictured method's segments of the first frame side by side, one random colour per segment, black where a
-    point has no normal: a fold frame as its image, a scan from above (the sensor at the centre, out to 25 m)."""
+    point has no normal: a fold frame as its image, a scan from above (its image would be 32 rows by 1800)."""
     import matplotlib  # here only: drawing is optional, and importing the evaluation must stay cheap
 
     matplotlib.use("Agg")
@@ -206,16 +227,17 @@ def draw_segments(kind: str, picture: dict[str, np.ndarray], path: Path) -> Path
 
     points = picture["points"]
     panels = {name: labels for name, labels in picture.items() if name != "points"}
-    size = (4, 3.4) if kind == "fold" else (4, 4)
+    from_above = SETS[kind].from_above
+    size = (4, 4) if from_above else (4, 3.4)
     fig, axes = plt.subplots(1, len(panels), figsize=(size[0] * len(panels), size[1]))
     for ax, (name, labels) in zip(np.atleast_1d(axes), panels.items(), strict=True):
         colours = np.random.default_rng(0).uniform(0.15, 1.0, (int(labels.max()) + 2, 3))
         image = np.where((labels >= 0)[..., None], colours[np.maximum(labels, 0)], 0.0)
-        if kind == "fold":
+        if from_above:
+            _draw_from_above(ax, points, image)
+        else:
             ax.imshow(image, interpolation="nearest")
             ax.axis("off")
-        else:
-            _draw_from_above(ax, points, image)
         ax.set_title(name, fontsize=8)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -224,7 +246,9 @@ def draw_segments(kind: str, picture: dict[str, np.ndarray], path: Path) -> Path
     return path
 
 
-def _draw_from_above(ax, points: np.ndarray, colours: np.ndarray, reach: float = 25.0) -> None:
+def _draw_from_above(ax: Axes, points: np.ndarray, colours: np.ndarray, reach: float = 32.0) -> None:
+    """The scan's points on the ground plane, the sensor at the centre, out to `reach` m: the yards hold their crates
+    and pillars within 30 m."""
     flat, flat_colours = points.reshape(-1, 3), colours.reshape(-1, 3)
     shown = np.isfinite(flat).all(axis=1) & (np.hypot(flat[:, 0], flat[:, 1]) < reach)
     ax.scatter(flat[shown, 0], flat[shown, 1], c=flat_colours[shown], s=1.0, linewidths=0)
