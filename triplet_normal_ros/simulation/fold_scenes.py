@@ -165,9 +165,12 @@ def fold_scene(seed: int, kind: str) -> Scene:
     return Scene(tuple(_BUILDERS[kind](rng)), origin, rotation)
 
 
-def fold_frame(seed: int, kind: str, width: int = 640, height: int = 480) -> RangeFrame:
-    """One Kinect-like frame of `fold_scene(seed, kind)`, with the depth camera's noise and dropouts."""
-    rng = np.random.default_rng(derive_seed(seed, "fold", kind, "noise"))
+def fold_frame(seed: int, kind: str, width: int = 640, height: int = 480, moved: Scene | None = None) -> RangeFrame:
+    """One Kinect-like frame of `fold_scene(seed, kind)`, with the depth camera's noise and dropouts; with `moved` (that
+    scene seen by a moved camera: `second_view`), the second frame of a pair, which draws noise of its own."""
+    view = ("second view",) if moved is not None else ()
+    rng = np.random.default_rng(derive_seed(seed, "fold", kind, *view, "noise"))
     rays = camera_rays(width, height)
-    scene = fold_scene(seed, kind)
-    return simulate(f"fold_{kind}_{seed}", "depth", scene, rays, kinect_sigma, DEPTH_RANGE, rng, (height, width))
+    scene = fold_scene(seed, kind) if moved is None else moved
+    name = f"fold_{kind}_{seed}" + ("_moved" if view else "")
+    return simulate(name, "depth", scene, rays, kinect_sigma, DEPTH_RANGE, rng, (height, width))

@@ -59,11 +59,20 @@ def lidar_scene(seed: int) -> Scene:
 
 
 def lidar_scan(
-    seed: int, beams: int = 32, azimuth_step_deg: float = 0.2, range_sigma: float = RANGE_SIGMA
+    seed: int,
+    beams: int = 32,
+    azimuth_step_deg: float = 0.2,
+    range_sigma: float = RANGE_SIGMA,
+    moved: Scene | None = None,
 ) -> RangeFrame:
-    """One spinning-LiDAR scan of `lidar_scene(seed)`, (beams, 360 / step); range noise N(0, range_sigma) m."""
-    rng = np.random.default_rng(derive_seed(seed, "lidar", "noise"))
+    """One spinning-LiDAR scan of `lidar_scene(seed)`, (beams, 360 / step); range noise N(0, range_sigma) m; with
+    `moved` (that yard seen by a moved sensor: `second_view`), the second scan of a pair, which draws noise of its
+    own."""
+    view = ("second view",) if moved is not None else ()
+    rng = np.random.default_rng(derive_seed(seed, "lidar", *view, "noise"))
     rays = lidar_rays(beams, azimuth_step_deg)
     shape = (beams, len(rays) // beams)
     sigma = partial(np.full_like, fill_value=range_sigma)  # the same for every range
-    return simulate(f"lidar_{seed}", "lidar", lidar_scene(seed), rays, sigma, LIDAR_RANGE, rng, shape)
+    scene = lidar_scene(seed) if moved is None else moved
+    name = f"lidar_{seed}" + ("_moved" if view else "")
+    return simulate(name, "lidar", scene, rays, sigma, LIDAR_RANGE, rng, shape)

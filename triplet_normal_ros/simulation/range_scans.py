@@ -91,7 +91,7 @@ def _cached_frames(
     root = writable_cache(Path(cache_dir) if cache_dir is not None else default_cache_dir())
     frames = []
     for i in range(count):
-        frame_seed = derive_seed(seed, kind, i)
+        frame_seed = frame_seed_of(kind, seed, i)
         blob = json.dumps([kind, params, frame_seed, EDGE_RADIUS, SOURCE_DIGEST], sort_keys=True)
         path = root / f"{kind}-{hashlib.sha256(blob.encode()).hexdigest()[:16]}.npz" if root else None
         frame = _load_frame(path, shape) if path and path.exists() else None
@@ -101,6 +101,23 @@ def _cached_frames(
                 _save_frame(path, frame)
         frames.append(frame)
     return frames
+
+
+def frame_seed_of(kind: str, seed: int, index: int) -> int:
+    """The seed of frame `index` of a set of `kind` drawn from `seed`: each frame's own, so that a pair or a study can
+    rebuild one frame of a set without the rest."""
+    return derive_seed(seed, kind, index)
+
+
+def fold_kind_and_seed(index: int, seed: int = 0) -> tuple[str, int]:
+    """The scene kind and the frame seed of `fold_frames(n, seed)[index]`."""
+    kind = FOLD_KINDS[index % len(FOLD_KINDS)]
+    return kind, frame_seed_of(f"fold-{kind}", derive_seed(seed, index), 0)
+
+
+def lidar_scan_seed(index: int, seed: int = 0) -> int:
+    """The frame seed of `lidar_scans(n, seed)[index]`."""
+    return frame_seed_of("lidar", seed, index)
 
 
 def depth_frames(

@@ -12,11 +12,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .depth_camera import DEPTH_RANGE, camera_rays, kinect_sigma
-from .fold_scenes import fold_scene
-from .lidar import LIDAR_RANGE, RANGE_SIGMA, lidar_rays, lidar_scene
-from .range_frame import RangeFrame, simulate
-from .range_scans import FOLD_KINDS
+from .fold_scenes import fold_frame, fold_scene
+from .lidar import lidar_scan, lidar_scene
+from .range_frame import RangeFrame
+from .range_scans import fold_kind_and_seed, lidar_scan_seed
 from .raycast import Scene
 from .seeds import derive_seed
 
@@ -37,40 +36,21 @@ class ViewPair:
 
 def fold_pair(index: int, seed: int = 0, width: int = 640, height: int = 480) -> ViewPair:
     """The fold frame `range_scans.fold_frames(n, seed)[index]` and a second frame of its scene after DEPTH_MOTION."""
-    kind = FOLD_KINDS[index % len(FOLD_KINDS)]
-    scene_seed = derive_seed(derive_seed(seed, index), f"fold-{kind}", 0)  # the seed `fold_frames` gives that frame
-    scene = fold_scene(scene_seed, kind)
-    rays = camera_rays(width, height)
-
-    def shoot(view: Scene, *noise: str) -> RangeFrame:
-        rng = np.random.default_rng(derive_seed(scene_seed, "fold", kind, *noise))
-        name = f"fold_{kind}_{scene_seed}" + ("_moved" if len(noise) > 1 else "")
-        return simulate(name, "depth", view, rays, kinect_sigma, DEPTH_RANGE, rng, (height, width))
-
-    moved, motion = _moved(scene, DEPTH_MOTION, np.random.default_rng(derive_seed(scene_seed, "second view")))
-    return ViewPair(shoot(scene, "noise"), shoot(moved, "second view", "noise"), motion)
+    kind, scene_seed = fold_kind_and_seed(index, seed)
+    rng = np.random.default_rng(derive_seed(scene_seed, "second view"))
+    moved, motion = _moved(fold_scene(scene_seed, kind), DEPTH_MOTION, rng)
+    first = fold_frame(scene_seed, kind, width, height)
+    return ViewPair(first, fold_frame(scene_seed, kind, width, height, moved=moved), motion)
 
 
 def lidar_pair(index: int, seed: int = 0, beams: int = 32, azimuth_step_deg: float = 0.2) -> ViewPair:
     """The LiDAR scan `range_scans.lidar_scans(n, seed)[index]` and a second scan of its yard after LIDAR_MOTION: a
     level step and a yaw about the vertical, as a vehicle drives and turns (the LiDAR's frame is level)."""
-    scan_seed = derive_seed(seed, "lidar", index)  # the seed `lidar_scans` gives that scan
-    scene = lidar_scene(scan_seed)
-    rays = lidar_rays(beams, azimuth_step_deg)
-    shape = (beams, len(rays) // beams)
-
-    def shoot(view: Scene, *noise: str) -> RangeFrame:
-        rng = np.random.default_rng(derive_seed(scan_seed, "lidar", *noise))
-        name = f"lidar_{scan_seed}" + ("_moved" if len(noise) > 1 else "")
-
-        def sigma(t: np.ndarray) -> np.ndarray:
-            return np.full_like(t, RANGE_SIGMA)
-
-        return simulate(name, "lidar", view, rays, sigma, LIDAR_RANGE, rng, shape)
-
+    scan_seed = lidar_scan_seed(index, seed)
     rng = np.random.default_rng(derive_seed(scan_seed, "second view"))
-    moved, motion = _moved(scene, LIDAR_MOTION, rng, axis=np.array([0.0, 0.0, 1.0]), level=True)
-    return ViewPair(shoot(scene, "noise"), shoot(moved, "second view", "noise"), motion)
+    moved, motion = _moved(lidar_scene(scan_seed), LIDAR_MOTION, rng, axis=np.array([0.0, 0.0, 1.0]), level=True)
+    first = lidar_scan(scan_seed, beams, azimuth_step_deg)
+    return ViewPair(first, lidar_scan(scan_seed, beams, azimuth_step_deg, moved=moved), motion)
 
 
 def _moved(
