@@ -16,7 +16,7 @@ from triplet_normal_ros.evaluation.registration import (
     perturbed_starts,
     point_to_plane_icp,
 )
-from triplet_normal_ros.simulation.range_scans import fold_frames, lidar_scans
+from triplet_normal_ros.simulation.range_scans import fold_frames, fold_kind_and_seed, lidar_scan_seed, lidar_scans
 from triplet_normal_ros.simulation.second_view import fold_pair, lidar_pair, rotation_about
 
 
@@ -138,6 +138,14 @@ def test_a_lidar_pairs_second_scan_lies_on_the_first_after_the_pairs_motion() ->
     assert abs(pair.second_to_first[2, 3]) < 1e-12  # a level step, as a vehicle drives
     mapped, unmoved = (_median_gap(pair, m, walls_only=True) for m in (pair.second_to_first, np.eye(4)))
     assert mapped < 0.03 and unmoved > 4 * mapped, (mapped, unmoved)  # 1.5 cm range noise
+
+
+def test_a_pair_rebuilds_the_frame_its_set_gives_at_any_index_and_seed() -> None:
+    """The seed helpers a pair rebuilds its first frame from name the frames the sets make, beyond index and seed 0
+    (their arguments come in different orders)."""
+    kind, seed = fold_kind_and_seed(4, 7)
+    assert fold_frames(5, 7, width=40, height=30)[4].name == f"fold_{kind}_{seed}"
+    assert lidar_scans(3, 7, beams=8, azimuth_step_deg=4.0)[2].name == f"lidar_{lidar_scan_seed(2, 7)}"
 
 
 def test_eval_icp_scores_every_row_on_the_same_starts() -> None:

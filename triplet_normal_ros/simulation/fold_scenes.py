@@ -165,7 +165,7 @@ def fold_scene(seed: int, kind: str) -> Scene:
     return Scene(tuple(_BUILDERS[kind](rng)), origin, rotation)
 
 
-def fold_frame(seed: int, kind: str, width: int = 640, height: int = 480, moved: Scene | None = None) -> RangeFrame:
+def fold_frame(seed: int, kind: str, width: int = 640, height: int = 480, *, moved: Scene | None = None) -> RangeFrame:
     """One Kinect-like frame of `fold_scene(seed, kind)`, with the depth camera's noise and dropouts; with `moved` (that
     scene seen by a moved camera: `second_view`), the second frame of a pair, which draws noise of its own."""
     view = ("second view",) if moved is not None else ()

@@ -63,6 +63,7 @@ def lidar_scan(
     beams: int = 32,
     azimuth_step_deg: float = 0.2,
     range_sigma: float = RANGE_SIGMA,
+    *,
     moved: Scene | None = None,
 ) -> RangeFrame:
     """One spinning-LiDAR scan of `lidar_scene(seed)`, (beams, 360 / step); range noise N(0, range_sigma) m; with
