@@ -53,10 +53,12 @@ _PICTURED = (PCA_WINDOW, "PCA, k = 30", NODE)
 
 
 def _fold_frames(count: int, quick: bool, seed: int) -> list[RangeFrame]:
+    """`eval-fold`'s first `count` frames, or for --quick one small frame (tests only)."""
     return fold_frames(1, seed, width=160, height=120) if quick else fold_frames(count, seed)
 
 
 def _lidar_scans(count: int, quick: bool, seed: int) -> list[RangeFrame]:
+    """`eval-lidar`'s first `count` scans, or for --quick one scan at 1° azimuth steps (tests only)."""
     return lidar_scans(1, seed, azimuth_step_deg=1.0) if quick else lidar_scans(count, seed)
 
 
@@ -77,6 +79,7 @@ class SegmentSet:
     from_above: bool = False
 
     def load(self, quick: bool, seed: int) -> list[RangeFrame]:
+        """The set's frames from `seed` (eval's: 0; studies': others)."""
         return self.loader(self.frames, quick, seed)
 
 
