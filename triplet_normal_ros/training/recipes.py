@@ -130,8 +130,8 @@ RECIPES = {
         fold_frames=24,
     ),
     # The range checkpoint, a CPU's network on range images: lite's training on a quarter of the patch (k = 32, a
-    # 128-point pool) and a 128-wide latent, on the kinds of training clouds lite has (12 depth frames, 12 LiDAR
-    # scans and 72 fold frames among them, lite 24). On range images it has about lite's error, less at folds, at a
+    # 128-point pool) and a 128-wide latent, on the kinds of training clouds lite has (36 depth frames, 36 LiDAR
+    # scans and 72 fold frames among them; lite 12, 12 and 24). On range images it has less than lite's error, at a
     # fraction of its pools, patches and network; on dense noisy clouds at large radii its small pool loses to lite's
     # (docs/MODEL.md, "The range network").
     # Its loss is the plain squared angle: the relative loss, which discounts patches where PCA is far off, left the
@@ -142,7 +142,8 @@ RECIPES = {
     # nothing (docs/HISTORY.md, "Lite and range with the scale head"). 72 close-range fold frames join its training
     # clouds: against none, 24 took 2.5 % off hybrid's error on fold scenes and 1.3 % on rooms that eval never scores,
     # and 72 a further 2.9 % and 2.3 %, LiDAR scans level (docs/HISTORY.md, "Range with fold frames", "Range with 72
-    # fold frames").
+    # fold frames"). 36 depth frames and LiDAR scans instead of 12 took a further 1.6 % off fold scenes, 1.5 % off
+    # rooms and 0.1 % off LiDAR scans (near edges 2.1 %, 1.9 %, 3.4 %; docs/HISTORY.md, "Range with 36 range frames").
     "range": Recipe(
         residual=True,
         loss="angle",
@@ -152,7 +153,7 @@ RECIPES = {
         regressor_epochs=120,
         regressor_patches_per_shape=6000,
         val_patches_per_cloud=300,
-        range_frames=12,
+        range_frames=36,
         fold_frames=72,
         scales=[8, 16, 32, 64],
         inlier_seeds=[16, 32],
