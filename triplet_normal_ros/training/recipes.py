@@ -143,7 +143,8 @@ RECIPES = {
     # clouds: against none, 24 took 2.5 % off hybrid's error on fold scenes and 1.3 % on rooms that eval never scores,
     # and 72 a further 2.9 % and 2.3 %, LiDAR scans level (docs/HISTORY.md, "Range with fold frames", "Range with 72
     # fold frames"). 36 depth frames and LiDAR scans instead of 12 took a further 1.6 % off fold scenes, 1.5 % off
-    # rooms and 0.1 % off LiDAR scans (near edges 2.1 %, 1.9 %, 3.4 %; docs/HISTORY.md, "Range with 36 range frames").
+    # rooms and 0.1 % off LiDAR scans of seeds 100-104 (near edges 2.1 %, 1.9 %, 3.4 %); smaller sets moved either way
+    # (docs/HISTORY.md, "Range with 36 range frames").
     "range": Recipe(
         residual=True,
         loss="angle",
